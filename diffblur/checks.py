@@ -1,0 +1,134 @@
+"""Argument checks shared by both backends.
+
+The checks take facts (a shape, a dtype and whether it is floating, a Python value), never a
+tensor, so this module stays free of torch and jax. Each backend's ``_checks`` module reads the
+facts off its own arrays and calls these. Every message names the argument, the value it got and
+what is allowed, e.g. ``samples must be an odd integer >= 1, got 4``.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Iterable, Sequence
+
+__all__ = [
+    "nonpositive_message",
+    "nonfinite_message",
+    "require_choice",
+    "require_floating",
+    "require_image",
+    "require_nonnegative_number",
+    "require_odd_int",
+    "require_positive_int",
+    "require_positive_number",
+    "require_same_dtype",
+    "require_same_shape",
+    "require_same_batch_and_size",
+]
+
+
+def _is_real_number(value: object) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def require_image(name: str, shape: Sequence[int], *, channels: int | None = None) -> tuple[int, ...]:
+    """Check that `shape` is (B, C, H, W), non-empty, with `channels` channels if given."""
+    shape = tuple(int(s) for s in shape)
+    layout = f"(B, {channels}, H, W)" if channels is not None else "(B, C, H, W)"
+    if len(shape) != 4:
+        raise ValueError(f"{name} must be a 4-d {layout} array, got shape {shape}")
+    if channels is not None and shape[1] != channels:
+        raise ValueError(f"{name} must have {channels} channel(s) in dim 1, {layout}, got shape {shape}")
+    if min(shape) == 0:
+        raise ValueError(f"{name} must not be empty, got shape {shape}")
+    return shape
+
+
+def require_floating(name: str, dtype: object, is_floating: bool) -> None:
+    """Check that an array's dtype is floating (integer images must be converted by the caller)."""
+    if not is_floating:
+        raise TypeError(
+            f"{name} must have a floating dtype (float16, bfloat16, float32 or float64), got {dtype}; "
+            "convert integer images explicitly, e.g. divide uint8 by 255"
+        )
+
+
+def require_same_dtype(name: str, dtype: object, reference_name: str, reference_dtype: object) -> None:
+    """Check that two arrays share a dtype (no silent promotion inside an op)."""
+    if str(dtype) != str(reference_dtype):
+        raise TypeError(f"{name} must have the dtype of {reference_name} ({reference_dtype}), got {dtype}")
+
+
+def require_same_shape(name: str, shape: Sequence[int], reference_name: str, reference_shape: Sequence[int]) -> None:
+    """Check that two arrays have exactly the same shape (no broadcasting)."""
+    if tuple(shape) != tuple(reference_shape):
+        raise ValueError(
+            f"{name} must have the shape of {reference_name} {tuple(reference_shape)}, got {tuple(shape)}"
+        )
+
+
+def require_same_batch_and_size(
+    reference_name: str, reference_shape: Sequence[int], others: Iterable[tuple[str, Sequence[int]]]
+) -> None:
+    """Check that (B, C, H, W) arrays share B, H and W with the reference (C may differ)."""
+    b, _, h, w = reference_shape
+    for name, shape in others:
+        if (shape[0], shape[2], shape[3]) != (b, h, w):
+            raise ValueError(
+                f"{name} must match {reference_name} in batch and size (B={b}, H={h}, W={w}), "
+                f"got shape {tuple(shape)}"
+            )
+
+
+def require_positive_int(name: str, value: object) -> int:
+    """Check that `value` is an integer >= 1 (bools are rejected)."""
+    if not isinstance(value, numbers.Integral) or isinstance(value, bool):
+        raise TypeError(f"{name} must be an integer >= 1, got {value!r}")
+    if value < 1:
+        raise ValueError(f"{name} must be an integer >= 1, got {value}")
+    return int(value)
+
+
+def require_odd_int(name: str, value: object) -> int:
+    """Check that `value` is an odd integer >= 1, as the filter's tap counts are."""
+    if not isinstance(value, numbers.Integral) or isinstance(value, bool):
+        raise TypeError(f"{name} must be an odd integer >= 1, got {value!r}")
+    if value < 1 or value % 2 == 0:
+        raise ValueError(f"{name} must be an odd integer >= 1, got {value}")
+    return int(value)
+
+
+def require_positive_number(name: str, value: object) -> float:
+    """Check that a Python number is finite and > 0 (math.inf is allowed only where documented)."""
+    if not _is_real_number(value):
+        raise TypeError(f"{name} must be a real number > 0, got {value!r}")
+    if not value > 0 or math.isnan(value):
+        raise ValueError(f"{name} must be > 0, got {value}")
+    return float(value)
+
+
+def require_nonnegative_number(name: str, value: object) -> float:
+    """Check that a Python number is >= 0 and not NaN."""
+    if not _is_real_number(value):
+        raise TypeError(f"{name} must be a real number >= 0, got {value!r}")
+    if not value >= 0:
+        raise ValueError(f"{name} must be >= 0, got {value}")
+    return float(value)
+
+
+def require_choice(name: str, value: object, allowed: Sequence[str]) -> str:
+    """Check that `value` is one of the allowed option strings."""
+    if value not in allowed:
+        raise ValueError(f"{name} must be one of {', '.join(repr(a) for a in allowed)}; got {value!r}")
+    return str(value)
+
+
+def nonpositive_message(name: str) -> str:
+    """The message for an array argument that must be > 0 everywhere (checked on the data)."""
+    return f"{name} must be > 0 everywhere, got a value <= 0 (or NaN)"
+
+
+def nonfinite_message(name: str) -> str:
+    """The message for an array argument that must be finite everywhere (checked on the data)."""
+    return f"{name} must be finite everywhere, got NaN or infinity"

@@ -1,0 +1,65 @@
+"""The project's conventions, as constants. Both backends and the NumPy reference read them here.
+
+| thing | shape | meaning |
+|---|---|---|
+| color | (B, C, H, W) | linear (not gamma-encoded) intensities; any C |
+| velocity | (B, 2, H, W) | channel 0 = x (columns, rightwards), 1 = y (rows, downwards), in pixels; the
+  half-spread of seed 000: during the exposure the point covers X - V ... X + V |
+| depth | (B, 1, H, W) | positive linear depth along the view axis; larger = farther |
+| offset_prev, offset_next | (B, 2, H, W) | where the point seen at X at mid-exposure is at t = -1 and t = +1,
+  relative to X; linear motion is offset_prev = -V, offset_next = +V |
+| exposure time t | [-1, 1] | normalised; t = 0 is the instant the sharp frame shows |
+
+Pixel centres are at integer coordinates: pixel (row i, column j) is the point (x=j, y=i).
+Seed 000 uses camera-space z that is negative in front of the camera; this project uses positive
+depth, so its comparisons are mirrored (see `soft_depth_compare` in `diffblur.reference`).
+"""
+
+from __future__ import annotations
+
+#: Index of the x (column, rightwards) component in a velocity or offset tensor.
+X_CHANNEL = 0
+#: Index of the y (row, downwards) component in a velocity or offset tensor.
+Y_CHANNEL = 1
+#: Channels of a velocity or offset tensor.
+VECTOR_CHANNELS = 2
+#: Channels of a depth tensor.
+DEPTH_CHANNELS = 1
+
+#: The epsilon of seed 000 (sec. 2.2 and Listing 1), in pixels. It guards divisions by a speed:
+#: lengths below it are treated as EPSILON. Small enough to be invisible (a thousandth of a
+#: pixel), large enough that the gradient of `velocity_from_motion` at zero displacement stays
+#: bounded by min_radius / EPSILON (500 for the default min_radius of 0.5 px).
+EPSILON = 1e-3
+
+#: Defaults of seed 000: maximum blur radius k, minimum radius 0.5 px, S filter taps.
+DEFAULT_MAX_RADIUS = 20.0
+DEFAULT_MIN_RADIUS = 0.5
+DEFAULT_SAMPLES = 15
+
+#: The cylinder classifier's smoothstep runs from CYLINDER_INNER to CYLINDER_OUTER times the speed
+#: (seed 000, Figure 4).
+CYLINDER_INNER = 0.95
+CYLINDER_OUTER = 1.05
+
+#: Interleaved gradient noise (Jimenez 2014): noise(x, y) = fract(C * fract(A x + B y)), computed in
+#: float64 by every backend so that all three give the same jitter bit for bit before the cast.
+IGN_A = 0.06711056
+IGN_B = 0.00583715
+IGN_C = 52.9829189
+
+__all__ = [
+    "CYLINDER_INNER",
+    "CYLINDER_OUTER",
+    "DEFAULT_MAX_RADIUS",
+    "DEFAULT_MIN_RADIUS",
+    "DEFAULT_SAMPLES",
+    "DEPTH_CHANNELS",
+    "EPSILON",
+    "IGN_A",
+    "IGN_B",
+    "IGN_C",
+    "VECTOR_CHANNELS",
+    "X_CHANNEL",
+    "Y_CHANNEL",
+]
