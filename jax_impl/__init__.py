@@ -1,0 +1,26 @@
+"""diffblur's JAX backend: batched, differentiable motion blur ops.
+
+Mirrors `torch_impl` name by name; conventions in `diffblur.conventions`.
+"""
+
+from jax_impl._primitives import (
+    cone,
+    cylinder,
+    interleaved_gradient_noise,
+    neighbor_max,
+    safe_length,
+    soft_depth_compare,
+    tile_max,
+    velocity_from_motion,
+)
+
+__all__ = [
+    "cone",
+    "cylinder",
+    "interleaved_gradient_noise",
+    "neighbor_max",
+    "safe_length",
+    "soft_depth_compare",
+    "tile_max",
+    "velocity_from_motion",
+]

@@ -1,0 +1,84 @@
+"""Reads the facts the shared checks in `diffblur.checks` need off JAX arrays.
+
+Checks that look at the data (signs, finiteness) raise ValueError on concrete arrays; under
+`jax.jit` (traced arrays) they go through `equinox.error_if`, which raises at run time.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from diffblur import checks
+
+
+def array(name: str, x: object) -> jax.Array:
+    """A jax.Array; a NumPy array is converted (as jax.numpy functions do), anything else refused."""
+    if isinstance(x, np.ndarray):
+        return jnp.asarray(x)
+    if not isinstance(x, jax.Array):
+        raise TypeError(f"{name} must be a jax.Array, got {type(x).__name__}")
+    return x
+
+
+def floating_array(name: str, x: object) -> jax.Array:
+    x = array(name, x)
+    checks.require_floating(name, x.dtype, jnp.issubdtype(x.dtype, jnp.floating))
+    return x
+
+
+def image(name: str, x: object, *, channels: int | None = None) -> jax.Array:
+    """A floating (B, C, H, W) array, with `channels` channels if given."""
+    x = floating_array(name, x)
+    checks.require_image(name, x.shape, channels=channels)
+    return x
+
+
+def same_dtype(name: str, x: jax.Array, reference_name: str, reference: jax.Array) -> None:
+    checks.require_same_dtype(name, x.dtype, reference_name, reference.dtype)
+
+
+def same_shape(name: str, x: jax.Array, reference_name: str, reference: jax.Array) -> None:
+    checks.require_same_shape(name, x.shape, reference_name, reference.shape)
+    same_dtype(name, x, reference_name, reference)
+
+
+def positive_values(name: str, x: jax.Array) -> jax.Array:
+    """Raise if any element is <= 0 or NaN: ValueError now, or EqxRuntimeError under jit.
+
+    Returns `x`, which under jit must be used in place of the input to keep the check alive."""
+    bad = jnp.logical_not(jnp.all(x > 0))
+    if isinstance(x, jax.core.Tracer):
+        return eqx.error_if(x, bad, checks.nonpositive_message(name))
+    if bool(bad):
+        raise ValueError(checks.nonpositive_message(name))
+    return x
+
+
+def positive_scalar(name: str, value: object, like: jax.Array) -> float | jax.Array:
+    """A Python number > 0, or a 0-d array / array of `like`'s shape with values > 0."""
+    if isinstance(value, (jax.Array, np.ndarray)):
+        value = array(name, value)
+        if value.ndim != 0:
+            same_shape(name, value, "the compared arrays", like)
+        else:
+            same_dtype(name, floating_array(name, value), "the compared arrays", like)
+        return positive_values(name, value)
+    return checks.require_positive_number(name, value)
+
+
+def per_batch_scalar(name: str, value: object, like: jax.Array) -> float | jax.Array:
+    """A Python number, a 0-d array, or a (B,) array reshaped to broadcast over (B, C, H, W)."""
+    if isinstance(value, (jax.Array, np.ndarray)):
+        value = floating_array(name, value)
+        same_dtype(name, value, "the input", like)
+        if value.ndim == 0:
+            return value
+        if value.ndim == 1 and value.shape[0] == like.shape[0]:
+            return value.reshape(-1, 1, 1, 1)
+        raise ValueError(f"{name} must be a number, a 0-d array or a (B,) array with B={like.shape[0]}, got shape {tuple(value.shape)}")
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        raise TypeError(f"{name} must be a real number or a jax.Array, got {value!r}")
+    return float(value)

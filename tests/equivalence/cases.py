@@ -1,0 +1,134 @@
+"""The ops under test, one `Case` each, for the equivalence harness.
+
+A case builds seeded float64 NumPy inputs and names the NumPy reference, the PyTorch op and the
+JAX op that must agree on them. Later ops plug in by appending a Case to CASES.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+import jax_impl
+import torch_impl
+from diffblur import reference
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    #: Builds the inputs (float64 arrays) from a seeded generator.
+    make_inputs: Callable[[np.random.Generator], dict[str, np.ndarray]]
+    #: The three implementations, each called as fn(**inputs) with its own arrays.
+    reference: Callable[..., np.ndarray]
+    torch_op: Callable
+    jax_op: Callable
+    #: Inputs to differentiate with respect to.
+    differentiable: tuple[str, ...]
+    #: Differentiable inputs on which the op acts element by element (so a per-element finite
+    #: difference can say where the gradient must be nonzero).
+    elementwise: tuple[str, ...] = field(default=())
+    #: Float32 agreement tolerance of outputs (absolute, relative).
+    float32_tolerance: tuple[float, float] = (1e-5, 1e-5)
+
+    def inputs(self) -> dict[str, np.ndarray]:
+        return self.make_inputs(np.random.default_rng(zlib.crc32(self.name.encode())))
+
+
+def _depth_pair(rng):
+    z_a = rng.uniform(1.0, 3.0, size=(2, 1, 5, 6))
+    # Spread z_b across the whole soft band and both clamps.
+    return {"z_a": z_a, "z_b": z_a + rng.uniform(-0.5, 1.0, size=z_a.shape), "extent": np.array(0.6)}
+
+
+def _distance_speed(rng, *, around_speed: bool):
+    speed = rng.uniform(0.3, 4.0, size=(2, 1, 5, 6))
+    if around_speed:  # the cylinder's smoothstep band is 0.95 .. 1.05 times the speed
+        distance = speed * rng.uniform(0.9, 1.1, size=speed.shape)
+    else:
+        distance = rng.uniform(0.0, 4.5, size=speed.shape)
+    return {"distance": distance, "speed": speed}
+
+
+def _displacement(rng, batch=2):
+    # Lengths of q = displacement / 2 from ~0.1 px to ~25 px: below min_radius, inside, beyond max_radius.
+    d = rng.normal(size=(batch, 2, 5, 7))
+    d *= np.exp(rng.uniform(np.log(0.2), np.log(50.0), size=(batch, 1, 5, 7))) / np.linalg.norm(d, axis=1, keepdims=True)
+    return d
+
+
+CASES = [
+    Case(
+        "soft_depth_compare",
+        _depth_pair,
+        reference.soft_depth_compare,
+        torch_impl.soft_depth_compare,
+        jax_impl.soft_depth_compare,
+        differentiable=("z_a", "z_b", "extent"),
+        elementwise=("z_a", "z_b"),
+    ),
+    Case(
+        "cone",
+        lambda rng: _distance_speed(rng, around_speed=False),
+        reference.cone,
+        torch_impl.cone,
+        jax_impl.cone,
+        differentiable=("distance", "speed"),
+        elementwise=("distance", "speed"),
+    ),
+    Case(
+        "cylinder",
+        lambda rng: _distance_speed(rng, around_speed=True),
+        reference.cylinder,
+        torch_impl.cylinder,
+        jax_impl.cylinder,
+        differentiable=("distance", "speed"),
+        elementwise=("distance", "speed"),
+    ),
+    Case(
+        "safe_length",
+        lambda rng: {"vector": rng.normal(size=(2, 2, 4, 5)) * 3.0},
+        reference.safe_length,
+        torch_impl.safe_length,
+        jax_impl.safe_length,
+        differentiable=("vector",),
+    ),
+    Case(
+        "velocity_from_motion",
+        lambda rng: {"displacement": _displacement(rng), "exposure": np.array(0.8)},
+        lambda **a: reference.velocity_from_motion(**a, max_radius=8.0, min_radius=0.5),
+        lambda **a: torch_impl.velocity_from_motion(**a, max_radius=8.0, min_radius=0.5),
+        lambda **a: jax_impl.velocity_from_motion(**a, max_radius=8.0, min_radius=0.5),
+        differentiable=("displacement", "exposure"),
+        float32_tolerance=(1e-5, 1e-5),
+    ),
+    Case(
+        "velocity_from_motion_per_image_exposure",
+        lambda rng: {"displacement": _displacement(rng, batch=3), "exposure": rng.uniform(0.3, 1.5, size=(3,))},
+        lambda **a: reference.velocity_from_motion(**a, max_radius=20.0),
+        lambda **a: torch_impl.velocity_from_motion(**a, max_radius=20.0),
+        lambda **a: jax_impl.velocity_from_motion(**a, max_radius=20.0),
+        differentiable=("displacement", "exposure"),
+    ),
+    Case(
+        "tile_max",
+        lambda rng: {"velocity": rng.normal(size=(2, 2, 7, 11)) * 4.0},
+        lambda **a: reference.tile_max(**a, tile=3),
+        lambda **a: torch_impl.tile_max(**a, tile=3),
+        lambda **a: jax_impl.tile_max(**a, tile=3),
+        differentiable=("velocity",),
+    ),
+    Case(
+        "neighbor_max",
+        lambda rng: {"tile_velocity": rng.normal(size=(2, 2, 4, 5)) * 4.0},
+        reference.neighbor_max,
+        torch_impl.neighbor_max,
+        jax_impl.neighbor_max,
+        differentiable=("tile_velocity",),
+    ),
+]
+
+CASES_BY_NAME = {case.name: case for case in CASES}

@@ -1,0 +1,232 @@
+"""The equivalence harness: every op in NumPy, PyTorch and JAX on the same seeded inputs.
+
+For each Case in `cases.CASES`: outputs against the NumPy reference (float64 and float32), PyTorch
+against JAX directly (outputs and gradients), gradients against finite differences of the
+reference, each framework's own finite-difference check (gradcheck, check_grads), compiled against
+eager, and a check that the gradients are useful (nonzero where a change moves the output).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import torch
+from jax.test_util import check_grads
+
+from tests.equivalence.cases import CASES, Case
+
+DTYPES = ("float32", "float64")
+#: (atol, rtol) for gradients compared across frameworks, per dtype.
+GRADIENT_TOLERANCE = {"float32": (1e-4, 1e-4), "float64": (1e-10, 1e-9)}
+OUTPUT_TOLERANCE_FLOAT64 = (1e-12, 1e-10)
+FD_STEP = 1e-6
+
+case_ids = [case.name for case in CASES]
+
+
+def output_tolerance(case: Case, dtype: str) -> tuple[float, float]:
+    return case.float32_tolerance if dtype == "float32" else OUTPUT_TOLERANCE_FLOAT64
+
+
+def torch_inputs(case: Case, inputs: dict, dtype: str) -> dict[str, torch.Tensor]:
+    out = {}
+    for name, value in inputs.items():
+        tensor = torch.tensor(value, dtype=getattr(torch, dtype))
+        out[name] = tensor.requires_grad_(name in case.differentiable)
+    return out
+
+
+def jax_inputs(inputs: dict, dtype: str) -> dict[str, jax.Array]:
+    return {name: jnp.asarray(value, dtype=dtype) for name, value in inputs.items()}
+
+
+def torch_vjp(case: Case, inputs: dict, cotangent: np.ndarray, dtype: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    args = torch_inputs(case, inputs, dtype)
+    out = case.torch_op(**args)
+    grads = torch.autograd.grad((out * torch.tensor(cotangent, dtype=out.dtype)).sum(), [args[n] for n in case.differentiable])
+    return out.detach().numpy(), {n: g.numpy() for n, g in zip(case.differentiable, grads)}
+
+
+def jax_vjp(case: Case, inputs: dict, cotangent: np.ndarray, dtype: str, *, jit: bool = False) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    args = jax_inputs(inputs, dtype)
+    fixed = {n: v for n, v in args.items() if n not in case.differentiable}
+
+    def run(*diff_values):
+        return case.jax_op(**fixed, **dict(zip(case.differentiable, diff_values)))
+
+    def output_and_grads(*diff_values):
+        out, pullback = jax.vjp(run, *diff_values)
+        return out, pullback(jnp.asarray(cotangent, dtype=out.dtype))
+
+    fn = jax.jit(output_and_grads) if jit else output_and_grads
+    out, grads = fn(*[args[n] for n in case.differentiable])
+    return np.asarray(out), {n: np.asarray(g) for n, g in zip(case.differentiable, grads)}
+
+
+def random_cotangent(case: Case, inputs: dict) -> np.ndarray:
+    shape = case.reference(**inputs).shape
+    return np.random.default_rng(7).normal(size=shape)
+
+
+def assert_close(actual, expected, tolerance, what):
+    atol, rtol = tolerance
+    np.testing.assert_allclose(actual, expected, atol=atol, rtol=rtol, err_msg=what)
+
+
+# ----- outputs ---------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("backend", ["torch", "jax"])
+@pytest.mark.parametrize("case", CASES, ids=case_ids)
+def test_output_matches_numpy_reference(case, backend, dtype):
+    inputs = case.inputs()
+    expected = case.reference(**inputs)
+    if backend == "torch":
+        actual = case.torch_op(**torch_inputs(case, inputs, dtype)).detach().numpy()
+    else:
+        actual = np.asarray(case.jax_op(**jax_inputs(inputs, dtype)))
+    assert actual.dtype == np.dtype(dtype), "the op must keep the input dtype"
+    assert actual.shape == expected.shape
+    assert_close(actual, expected, output_tolerance(case, dtype), f"{case.name} {backend} {dtype}")
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("case", CASES, ids=case_ids)
+def test_torch_matches_jax(case, dtype):
+    """Outputs and gradients, PyTorch against JAX directly, with the same cotangent."""
+    inputs = case.inputs()
+    cotangent = random_cotangent(case, inputs)
+    torch_out, torch_grads = torch_vjp(case, inputs, cotangent, dtype)
+    jax_out, jax_grads = jax_vjp(case, inputs, cotangent, dtype)
+    assert_close(torch_out, jax_out, output_tolerance(case, dtype), f"{case.name} output")
+    for name in case.differentiable:
+        assert torch_grads[name].shape == jax_grads[name].shape == np.shape(inputs[name])
+        assert_close(torch_grads[name], jax_grads[name], GRADIENT_TOLERANCE[dtype], f"{case.name} d/d{name}")
+
+
+# ----- gradients ---------------------------------------------------------------------------------
+
+
+def reference_directional_derivative(case: Case, inputs: dict, name: str, direction: np.ndarray, cotangent: np.ndarray) -> float:
+    plus = dict(inputs, **{name: inputs[name] + FD_STEP * direction})
+    minus = dict(inputs, **{name: inputs[name] - FD_STEP * direction})
+    return float(np.sum(cotangent * (case.reference(**plus) - case.reference(**minus))) / (2 * FD_STEP))
+
+
+@pytest.mark.parametrize("backend", ["torch", "jax"])
+@pytest.mark.parametrize("case", CASES, ids=case_ids)
+def test_gradient_matches_reference_finite_differences(case, backend):
+    """float64 vector-Jacobian products against central differences of the NumPy reference, along
+    random directions; the directional derivatives must also be clearly nonzero (useful)."""
+    inputs = case.inputs()
+    cotangent = random_cotangent(case, inputs)
+    vjp = torch_vjp if backend == "torch" else jax_vjp
+    _, grads = vjp(case, inputs, cotangent, "float64")
+    rng = np.random.default_rng(3)
+    for name in case.differentiable:
+        assert np.all(np.isfinite(grads[name]))
+        for _ in range(3):
+            direction = rng.normal(size=np.shape(inputs[name]))
+            expected = reference_directional_derivative(case, inputs, name, direction, cotangent)
+            actual = float(np.sum(grads[name] * direction))
+            assert abs(expected) > 1e-6, f"{case.name}: d/d{name} should not vanish on these inputs"
+            np.testing.assert_allclose(actual, expected, rtol=1e-6, atol=1e-8, err_msg=f"{case.name} d/d{name}")
+
+
+@pytest.mark.parametrize("backend", ["torch", "jax"])
+@pytest.mark.parametrize("case", [c for c in CASES if c.elementwise], ids=[c.name for c in CASES if c.elementwise])
+def test_gradient_nonzero_exactly_where_output_moves(case, backend):
+    """Per element: where a small change of the input changes the output, the gradient is that
+    change (so nonzero); where it does not (a clamp), the gradient is 0."""
+    inputs = case.inputs()
+    ones = np.ones_like(case.reference(**inputs))
+    vjp = torch_vjp if backend == "torch" else jax_vjp
+    _, grads = vjp(case, inputs, ones, "float64")
+    for name in case.elementwise:
+        plus = dict(inputs, **{name: inputs[name] + FD_STEP})
+        minus = dict(inputs, **{name: inputs[name] - FD_STEP})
+        per_element = (case.reference(**plus) - case.reference(**minus)) / (2 * FD_STEP)
+        moves = np.abs(per_element) > 1e-6
+        assert moves.any() and not moves.all(), "the inputs should cover both moving and clamped elements"
+        assert np.all(grads[name][moves] != 0)
+        np.testing.assert_allclose(grads[name], per_element, rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize("case", CASES, ids=case_ids)
+def test_torch_gradcheck(case):
+    inputs = case.inputs()
+    args = torch_inputs(case, inputs, "float64")
+    names = list(case.differentiable)
+
+    def fn(*diff_values):
+        return case.torch_op(**dict(args, **dict(zip(names, diff_values))))
+
+    assert torch.autograd.gradcheck(fn, [args[n] for n in names], eps=1e-6, atol=1e-6, rtol=1e-5)
+
+
+@pytest.mark.parametrize("case", CASES, ids=case_ids)
+def test_jax_check_grads(case):
+    args = jax_inputs(case.inputs(), "float64")
+    names = list(case.differentiable)
+    fixed = {n: v for n, v in args.items() if n not in names}
+
+    def fn(*diff_values):
+        return case.jax_op(**fixed, **dict(zip(names, diff_values)))
+
+    check_grads(fn, [args[n] for n in names], order=1, modes=("fwd", "rev"), eps=1e-6, atol=1e-6, rtol=1e-5)
+
+
+# ----- compiled against eager ----------------------------------------------------------------------
+
+
+def test_torch_compile_matches_eager():
+    """All cases in one compiled function (one compilation), forward and backward."""
+    prepared = {case.name: (case, case.inputs()) for case in CASES}
+
+    def run_all(tensors):
+        return {name: case.torch_op(**tensors[name]) for name, (case, _) in prepared.items()}
+
+    compiled = torch.compile(run_all, fullgraph=True, dynamic=False)
+    for fn_name, fn in (("eager", run_all), ("compiled", compiled)):
+        tensors = {name: torch_inputs(case, inputs, "float32") for name, (case, inputs) in prepared.items()}
+        outs = fn(tensors)
+        loss = sum((out * out).sum() for out in outs.values())
+        loss.backward()
+        result = {name: (outs[name].detach().numpy(), {n: tensors[name][n].grad.numpy() for n in case.differentiable}) for name, (case, _) in prepared.items()}
+        if fn_name == "eager":
+            eager = result
+    for name, (case, _) in prepared.items():
+        assert_close(result[name][0], eager[name][0], (1e-6, 1e-6), f"{name} compiled output")
+        for n in case.differentiable:
+            assert_close(result[name][1][n], eager[name][1][n], (1e-5, 1e-5), f"{name} compiled d/d{n}")
+
+
+@pytest.mark.parametrize("case", CASES, ids=case_ids)
+def test_jax_jit_matches_eager(case):
+    inputs = case.inputs()
+    cotangent = random_cotangent(case, inputs)
+    eager_out, eager_grads = jax_vjp(case, inputs, cotangent, "float32")
+    jit_out, jit_grads = jax_vjp(case, inputs, cotangent, "float32", jit=True)
+    assert_close(jit_out, eager_out, (1e-6, 1e-6), "jit output")
+    for name in case.differentiable:
+        assert_close(jit_grads[name], eager_grads[name], (1e-5, 1e-5), f"jit d/d{name}")
+
+
+# ----- the jitter ---------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (7, 13), (720, 1280)])
+def test_interleaved_gradient_noise_identical_in_all_three(shape):
+    import jax_impl
+    import torch_impl
+    from diffblur import reference
+
+    expected = reference.interleaved_gradient_noise(*shape)
+    np.testing.assert_array_equal(torch_impl.interleaved_gradient_noise(*shape, dtype=torch.float64).numpy(), expected)
+    np.testing.assert_array_equal(np.asarray(jax_impl.interleaved_gradient_noise(*shape, dtype=jnp.float64)), expected)
+    np.testing.assert_array_equal(torch_impl.interleaved_gradient_noise(*shape, dtype=torch.float32).numpy(), expected.astype(np.float32))
+    np.testing.assert_array_equal(np.asarray(jax_impl.interleaved_gradient_noise(*shape, dtype=jnp.float32)), expected.astype(np.float32))
+    assert expected.min() >= 0 and expected.max() < 1
