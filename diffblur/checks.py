@@ -132,3 +132,15 @@ def nonpositive_message(name: str) -> str:
 def nonfinite_message(name: str) -> str:
     """The message for an array argument that must be finite everywhere (checked on the data)."""
     return f"{name} must be finite everywhere, got NaN or infinity"
+
+
+def require_in_interval(name: str, value: object, low: float, high: float) -> float:
+    """Check that a Python number lies in the closed interval [low, high] (NaN is rejected)."""
+    if not _is_real_number(value):
+        raise TypeError(f"{name} must be a real number in [{low}, {high}], got {value!r}")
+    if not low <= value <= high:
+        raise ValueError(f"{name} must be in [{low}, {high}], got {value}")
+    return float(value)
+
+
+__all__ += ["require_in_interval"]

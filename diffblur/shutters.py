@@ -124,6 +124,14 @@ def _check_unit_interval(name: str, value: Any, low: float = 0.0, high: float = 
         raise TypeError(f"{name} must be a real number in [{low}, {high}], got {value!r}")
 
 
+def _piecewise(a: Any, edge_width: Any, height: Any, edge_value: Any, xp: Any) -> Any:
+    """Flat `height` for |t| < 1 - edge_width, `edge_value` on the edges, 0 beyond 1. With a zero edge
+    width the window is a box, whose jump at |t| = 1 takes the midpoint value (see Box)."""
+    at_one = xp.where(edge_width > 0, _zeros(a), 0.5 * height + _zeros(a))
+    outer = xp.where(a < 1.0, edge_value, xp.where(a == 1.0, at_one, _zeros(a)))
+    return xp.where(a < 1.0 - edge_width, height + _zeros(a), outer)
+
+
 class ShutterWindow:
     """Base of the shutter windows: w(t) >= 0 on [-1, 1], integral 1, zero outside."""
 
@@ -133,8 +141,15 @@ class ShutterWindow:
         """w(t), elementwise, same shape as t; zero outside [-1, 1]."""
         raise NotImplementedError
 
-    def antiderivative(self, t: Any, xp: Any = np) -> Any:  # pragma: no cover - abstract
-        """W(t) = integral of w over [-1, t]; 0 for t <= -1, 1 for t >= 1."""
+    def antiderivative(self, t: Any, xp: Any = np) -> Any:
+        """W(t) = integral of w over [-1, t]; exactly 0 for t <= -1 and 1 for t >= 1."""
+        t = _clamp_t(_as_t(t, xp), xp)
+        inner = self._antiderivative(t, xp)
+        # Pin the ends exactly (sin(pi) is 1.2e-16, not 0) so that accumulation weights telescope.
+        return xp.where(t <= -1.0, _zeros(t), xp.where(t >= 1.0, _zeros(t) + 1.0, inner))
+
+    def _antiderivative(self, t: Any, xp: Any) -> Any:  # pragma: no cover - abstract
+        """W(t) for t already clamped to [-1, 1]."""
         raise NotImplementedError
 
     @property
@@ -151,10 +166,11 @@ class Box(ShutterWindow):
 
     def weight(self, t: Any, xp: Any = np) -> Any:
         t = _as_t(t, xp)
-        return xp.where(_inside(t, xp), _zeros(t) + 0.5, _zeros(t))
+        a = xp.abs(t)
+        # At the jumps |t| = 1 the value is the midpoint 1/4, so shifted boxes sum to 1/P everywhere.
+        return xp.where(a < 1.0, _zeros(t) + 0.5, xp.where(a == 1.0, _zeros(t) + 0.25, _zeros(t)))
 
-    def antiderivative(self, t: Any, xp: Any = np) -> Any:
-        t = _clamp_t(_as_t(t, xp), xp)
+    def _antiderivative(self, t: Any, xp: Any) -> Any:
         return 0.5 * (t + 1.0)
 
     @property
@@ -172,8 +188,7 @@ class Tent(ShutterWindow):
         t = _as_t(t, xp)
         return xp.where(_inside(t, xp), 1.0 - xp.abs(t), _zeros(t))
 
-    def antiderivative(self, t: Any, xp: Any = np) -> Any:
-        t = _clamp_t(_as_t(t, xp), xp)
+    def _antiderivative(self, t: Any, xp: Any) -> Any:
         return xp.where(t < 0, 0.5 * (1.0 + t) * (1.0 + t), 1.0 - 0.5 * (1.0 - t) * (1.0 - t))
 
     @property
@@ -204,10 +219,9 @@ class Trapezoid(ShutterWindow):
         a = xp.abs(t)
         height = 1.0 / (2.0 - f)
         ramp_value = height * (1.0 - a) / f_safe
-        return xp.where(a <= 1.0 - f, height, xp.where(a < 1.0, ramp_value, _zeros(t)))
+        return _piecewise(a, f, height, ramp_value, xp)
 
-    def antiderivative(self, t: Any, xp: Any = np) -> Any:
-        t = _clamp_t(_as_t(t, xp), xp)
+    def _antiderivative(self, t: Any, xp: Any) -> Any:
         f = self.ramp + _zeros(t)
         f_safe = xp.where(f > 0, f, _zeros(t) + 1.0)
         u = xp.abs(t)
@@ -232,8 +246,7 @@ class RaisedCosine(ShutterWindow):
         t = _as_t(t, xp)
         return xp.where(_inside(t, xp), 0.5 * (1.0 + xp.cos(math.pi * t)), _zeros(t))
 
-    def antiderivative(self, t: Any, xp: Any = np) -> Any:
-        t = _clamp_t(_as_t(t, xp), xp)
+    def _antiderivative(self, t: Any, xp: Any) -> Any:
         return 0.5 * (t + 1.0) + xp.sin(math.pi * t) / (2.0 * math.pi)
 
     @property
@@ -265,8 +278,7 @@ class Gaussian(ShutterWindow):
         value = xp.exp(-(t * t) / (2.0 * sigma * sigma)) / norm
         return xp.where(_inside(t, xp), value, _zeros(t))
 
-    def antiderivative(self, t: Any, xp: Any = np) -> Any:
-        t = _clamp_t(_as_t(t, xp), xp)
+    def _antiderivative(self, t: Any, xp: Any) -> Any:
         edge = self._erf_edge(xp)
         return 0.5 * (_erf(t / (self.sigma * math.sqrt(2.0)), xp) + edge) / edge
 
@@ -293,10 +305,9 @@ class Tukey(ShutterWindow):
         height = 1.0 / (2.0 - alpha)
         s = (a - (1.0 - alpha)) / alpha_safe
         taper_value = height * 0.5 * (1.0 + xp.cos(math.pi * s))
-        return xp.where(a <= 1.0 - alpha, height, xp.where(a < 1.0, taper_value, _zeros(t)))
+        return _piecewise(a, alpha, height, taper_value, xp)
 
-    def antiderivative(self, t: Any, xp: Any = np) -> Any:
-        t = _clamp_t(_as_t(t, xp), xp)
+    def _antiderivative(self, t: Any, xp: Any) -> Any:
         alpha = self.taper + _zeros(t)
         alpha_safe = xp.where(alpha > 0, alpha, _zeros(t) + 1.0)
         u = xp.abs(t)
@@ -329,8 +340,7 @@ class LinearRamp(ShutterWindow):
         t = _as_t(t, xp)
         return xp.where(_inside(t, xp), 0.5 * (1.0 + self.slope * t), _zeros(t))
 
-    def antiderivative(self, t: Any, xp: Any = np) -> Any:
-        t = _clamp_t(_as_t(t, xp), xp)
+    def _antiderivative(self, t: Any, xp: Any) -> Any:
         return 0.5 * (t + 1.0) + 0.25 * self.slope * (t * t - 1.0)
 
 
