@@ -144,3 +144,15 @@ def require_in_interval(name: str, value: object, low: float, high: float) -> fl
 
 
 __all__ += ["require_in_interval"]
+
+
+def require_finite_number(name: str, value: object) -> float:
+    """Check that `value` is a finite real Python number (bools are rejected)."""
+    if not _is_real_number(value):
+        raise TypeError(f"{name} must be a finite real number, got {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be finite, got {value}")
+    return float(value)
+
+
+__all__ += ["require_finite_number"]

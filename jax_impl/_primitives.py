@@ -46,8 +46,24 @@ def _floor_speed(speed: Array) -> Array:
     return jnp.where(speed < EPSILON, EPSILON, speed).astype(speed.dtype)
 
 
+def _floor_extent(extent: float | Array) -> float | Array:
+    """Array extents below sqrt(smallest normal) of their dtype count as that value: below it the
+    gradient (z_b - z_a) / extent**2 would overflow to inf and turn into NaN at the clamps.
+    The output is a step there either way."""
+    if isinstance(extent, float):
+        return extent
+    floor = jnp.finfo(extent.dtype).tiny ** 0.5
+    return jnp.where(extent < floor, floor, extent).astype(extent.dtype)
+
+
 def _soft_depth_compare(z_a: Array, z_b: Array, extent: float | Array) -> Array:
-    return _clamp01(1.0 - (z_b - z_a) / extent)
+    # clamp(1 - (z_b - z_a) / extent, 0, 1), with the division only inside the soft band (double
+    # where): outside it a tiny extent would give an infinite derivative times a zero cotangent.
+    extent = _floor_extent(extent)
+    behind = z_b - z_a
+    in_band = (behind >= 0) & (behind <= extent)
+    ramp = 1.0 - jnp.where(in_band, behind, 0.0) / extent
+    return jnp.where(behind < 0, 1.0, jnp.where(behind > extent, 0.0, ramp)).astype(z_a.dtype)
 
 
 def _cone(distance: Array, speed: Array) -> Array:
@@ -73,6 +89,7 @@ def soft_depth_compare(z_a: Float[Array, "*shape"], z_b: Float[Array, "*shape"],
     Args:
         z_a, z_b: depths of the same shape (any), positive, larger = farther.
         extent: the soft band, in depth units, > 0: a number, a 0-d array or an array of z's shape.
+            An array extent below sqrt(finfo(dtype).tiny) (1.1e-19 in float32) counts as that value.
 
     Returns:
         clamp(1 - (z_b - z_a) / extent, 0, 1): 1 where z_b <= z_a, 0 where z_b >= z_a + extent.

@@ -47,8 +47,24 @@ def _floor_speed(speed: Tensor) -> Tensor:
     return torch.where(speed < EPSILON, EPSILON, speed)
 
 
+def _floor_extent(extent: float | Tensor) -> float | Tensor:
+    """Array extents below sqrt(smallest normal) of their dtype count as that value: below it the
+    gradient (z_b - z_a) / extent**2 would overflow to inf and turn into NaN at the clamps.
+    The output is a step there either way."""
+    if isinstance(extent, float):
+        return extent
+    floor = torch.finfo(extent.dtype).tiny ** 0.5
+    return torch.where(extent < floor, floor, extent)
+
+
 def _soft_depth_compare(z_a: Tensor, z_b: Tensor, extent: float | Tensor) -> Tensor:
-    return _clamp01(1.0 - (z_b - z_a) / extent)
+    # clamp(1 - (z_b - z_a) / extent, 0, 1), with the division only inside the soft band (double
+    # where): outside it a tiny extent would give an infinite derivative times a zero cotangent.
+    extent = _floor_extent(extent)
+    behind = z_b - z_a
+    in_band = (behind >= 0) & (behind <= extent)
+    ramp = 1.0 - torch.where(in_band, behind, 0.0) / extent
+    return torch.where(behind < 0, 1.0, torch.where(behind > extent, 0.0, ramp))
 
 
 def _cone(distance: Tensor, speed: Tensor) -> Tensor:
@@ -74,6 +90,7 @@ def soft_depth_compare(z_a: Float[Tensor, "*shape"], z_b: Float[Tensor, "*shape"
     Args:
         z_a, z_b: depths of the same shape (any), positive, larger = farther.
         extent: the soft band, in depth units, > 0: a number, a 0-d tensor or a tensor of z's shape.
+            A tensor extent below sqrt(finfo(dtype).tiny) (1.1e-19 in float32) counts as that value.
 
     Returns:
         clamp(1 - (z_b - z_a) / extent, 0, 1): 1 where z_b <= z_a, 0 where z_b >= z_a + extent.
