@@ -1,0 +1,83 @@
+"""PyTorch specifics: dtypes and devices kept, non-contiguous and channels-last input, eager
+data checks skipped (not wrong) under torch.compile."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+import torch_impl
+
+DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+
+
+def all_ops(velocity):
+    depth = velocity[:, :1].abs() + 1.0
+    speed = torch_impl.safe_length(velocity)
+    return {
+        "soft_depth_compare": torch_impl.soft_depth_compare(depth, depth.flip(-1), 0.1),
+        "cone": torch_impl.cone(speed.flip(-1), speed),
+        "cylinder": torch_impl.cylinder(speed.flip(-1), speed),
+        "safe_length": speed,
+        "velocity_from_motion": torch_impl.velocity_from_motion(velocity, exposure=0.5),
+        "tile_max": torch_impl.tile_max(velocity, 3),
+        "neighbor_max": torch_impl.neighbor_max(torch_impl.tile_max(velocity, 3)),
+    }
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16, torch.float32, torch.float64])
+def test_dtype_and_device_are_kept(dtype, device):
+    velocity = (torch.randn(2, 2, 7, 8, generator=torch.Generator().manual_seed(0)) * 3).to(device=device, dtype=dtype)
+    for name, out in all_ops(velocity).items():
+        assert out.dtype == dtype and out.device.type == device, name
+        assert torch.isfinite(out).all(), name
+    noise = torch_impl.interleaved_gradient_noise(4, 5, dtype=dtype, device=device)
+    assert noise.dtype == dtype and noise.device.type == device
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the CPU fallback message only when no GPU is present")
+def test_mismatched_devices_would_be_named():
+    from torch_impl import _checks
+
+    a = torch.zeros(3)
+    b = torch.zeros(3, device="meta")
+    with pytest.raises(ValueError, match=r"z_b must be on the device of z_a \(cpu\), got meta"):
+        _checks.same_dtype_and_device("z_b", b, "z_a", a)
+
+
+def test_non_contiguous_and_channels_last_inputs_give_the_same_result():
+    velocity = torch.randn(2, 2, 9, 10, generator=torch.Generator().manual_seed(1), dtype=torch.float64) * 4
+    expected = all_ops(velocity)
+    channels_last = velocity.contiguous(memory_format=torch.channels_last)
+    transposed = velocity.transpose(2, 3).contiguous().transpose(2, 3)
+    assert not transposed.is_contiguous()
+    for variant in (channels_last, transposed):
+        for name, out in all_ops(variant).items():
+            torch.testing.assert_close(out, expected[name], rtol=0, atol=0, msg=name)
+
+
+def test_data_checks_are_skipped_not_wrong_under_compile():
+    """Under torch.compile the extent sign check is skipped (documented); the result is what the
+    formula gives, and eager mode still raises."""
+    z = torch.ones(3)
+    with pytest.raises(ValueError, match="extent must be > 0 everywhere"):
+        torch_impl.soft_depth_compare(z, z, torch.tensor(-1.0))
+    compiled = torch.compile(torch_impl.soft_depth_compare, fullgraph=True)
+    out = compiled(z, z + 0.05, torch.tensor(0.1))
+    np.testing.assert_allclose(out.numpy(), 0.5, rtol=1e-6)
+
+
+def test_fit_exposure_through_velocity_from_motion():
+    """A useful gradient: Adam recovers an exposure of 0.6 from the velocity it produces."""
+    displacement = torch.randn(1, 2, 6, 6, generator=torch.Generator().manual_seed(2), dtype=torch.float64) * 8
+    target = torch_impl.velocity_from_motion(displacement, exposure=0.6)
+    exposure = torch.tensor(1.0, dtype=torch.float64, requires_grad=True)
+    optimizer = torch.optim.Adam([exposure], lr=0.05)
+    for _ in range(200):
+        optimizer.zero_grad()
+        loss = ((torch_impl.velocity_from_motion(displacement, exposure=exposure) - target) ** 2).mean()
+        loss.backward()
+        optimizer.step()
+    assert abs(exposure.item() - 0.6) < 1e-3
