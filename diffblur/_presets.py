@@ -189,7 +189,7 @@ def _pan(f: _Frame) -> Scene:
         f,
         _rounded_box(tower, tower_half, 3 * s),
         (tower[0] - tower_half[0], tower[1] - tower_half[1], tower[0] + tower_half[0], tower[1] + tower_half[1]),
-        _photo_paint("rocket", zoom=2.2, focus=(0.42, 0.45)),
+        _photo_paint("rocket", zoom=2.0, focus=(0.5, 0.6)),
     )
     post = f.at(0.76, 0.5)
     post_half = (6 * s, 60 * s)
@@ -245,7 +245,7 @@ def _propeller_scene(f: _Frame) -> Scene:
     tip_speed = 14.0 * s * f.jitter(0.1)
     angle = math.asin(min(tip_speed / length, 0.9)) * (1 if f.rng.random() < 0.5 else -1)
     inside = _propeller(center, length, width, 3, 7 * s, turn=f.rng.random() * 2 * math.pi)
-    paint = _spoked(_photo_paint("rocket", (1.3, 1.1, 0.9), zoom=1.4), center, 12)
+    paint = _spoked(_photo_paint("astronaut", zoom=1.2, focus=(0.5, 0.6)), center, 12)
     tex = _object(f, inside, (center[0] - length, center[1] - length, center[0] + length, center[1] + length), paint)
     layers = (_background(f, "coffee", 15.0), Layer(tex, 3.0, Rotation(center, angle), "propeller"))
     return Scene(f.height, f.width, layers)
@@ -285,10 +285,10 @@ def _gears(f: _Frame) -> Scene:
     m = min(f.width, f.height)
     # (centre fraction, radius fraction, teeth, depth, photo); neighbours mesh and turn the other way.
     specs = [
-        ((0.33, 0.38), 0.27, 12, 4.0, "rocket"),
+        ((0.33, 0.38), 0.27, 12, 4.0, "astronaut"),
         ((0.74, 0.3), 0.17, 8, 4.5, "chelsea"),
         ((0.68, 0.76), 0.22, 10, 3.5, "coffee"),
-        ((0.2, 0.8), 0.13, 6, 5.0, "astronaut"),
+        ((0.2, 0.8), 0.13, 6, 5.0, "rocket"),
     ]
     tip = 12.0 * s * f.jitter(0.1)
     layers = [_background(f, "camera", 20.0, zoom=1.0)]
@@ -299,8 +299,8 @@ def _gears(f: _Frame) -> Scene:
         # Meshing gears share the tip speed: angular speed ~ 1 / radius, alternating direction.
         angle = direction * math.asin(min(tip / radius, 0.9))
         direction = -direction
-        tint = np.array([0.9, 0.8, 0.6]) if name == "camera" else np.array([1.0, 1.0, 1.0])
-        paint = _spoked(_photo_paint(name, tuple(tint), zoom=1.3), center, teeth)
+        focus = (0.5, 0.85) if name == "rocket" else (0.5, 0.5)
+        paint = _spoked(_photo_paint(name, zoom=1.3, focus=focus), center, teeth)
         tex = _object(
             f,
             _gear(center, radius, teeth, 0.18 * radius),

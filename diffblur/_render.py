@@ -135,75 +135,131 @@ def _apply(matrices: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarr
     return px, py
 
 
-def _layer_samples(
-    scene: Scene, index: int, times: np.ndarray, xs: np.ndarray, ys: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Premultiplied RGBA (n, H, W, 4), depth (n, H, W) and layer coordinates of layer `index`."""
+@dataclass
+class _Samples:
+    """One layer sampled at n instants inside its footprint `window` (rows, cols of the image)."""
+
+    index: int
+    window: tuple[slice, slice]
+    rgb: np.ndarray  # (3, n, h, w) premultiplied; n may be 1 for a static layer (broadcasts)
+    alpha: np.ndarray | None  # (n, h, w); None: opaque
+    depth: np.ndarray  # (n, h, w) or (n, 1, 1)
+    source: tuple[np.ndarray, np.ndarray]  # layer coordinates x0, y0, (n, h, w) each
+
+
+def _footprint(scene: Scene, index: int, times: np.ndarray) -> tuple[slice, slice] | None:
+    """Rows and columns of the image that layer `index` can cover at `times`, or None if none."""
+    bounds = scene.layers[index].texture.bounds()
+    if bounds is None:
+        return slice(0, scene.height), slice(0, scene.width)
+    x_lo, x_hi, y_lo, y_hi = bounds
+    cx = np.array([x_lo, x_hi, x_lo, x_hi])
+    cy = np.array([y_lo, y_lo, y_hi, y_hi])
+    # The image of a rectangle under an affine map or a homography that keeps it in front of the camera
+    # is a convex quadrilateral: the bounding box of its corners covers it.
+    px, py = _apply(scene.matrices(index, times), cx, cy)
+    c0 = max(int(np.floor(px.min())) - 1, 0)
+    c1 = min(int(np.ceil(px.max())) + 2, scene.width)
+    r0 = max(int(np.floor(py.min())) - 1, 0)
+    r1 = min(int(np.ceil(py.max())) + 2, scene.height)
+    if c0 >= c1 or r0 >= r1:
+        return None
+    return slice(r0, r1), slice(c0, c1)
+
+
+def _layer_samples(scene: Scene, index: int, times: np.ndarray) -> _Samples | None:
+    """Layer `index` at `times` (n,), sampled by inverse mapping inside its footprint."""
     layer = scene.layers[index]
-    inverse = np.linalg.inv(scene.matrices(index, times))
-    x0, y0 = _apply(inverse, xs, ys)
-    rgba = layer.texture.sample(x0, y0)
+    window = _footprint(scene, index, times)
+    if window is None:
+        return None
+    rows, cols = window
+    xs = np.arange(cols.start, cols.stop, dtype=np.float64)[None, :]
+    ys = np.arange(rows.start, rows.stop, dtype=np.float64)[:, None]
+    x0, y0 = _apply(np.linalg.inv(scene.matrices(index, times)), xs, ys)
+    x0 = np.broadcast_to(x0, (len(times), len(ys), xs.shape[1]))
+    y0 = np.broadcast_to(y0, x0.shape)
+    rgb, alpha = layer.texture.sample(x0, y0)
     if layer.depth.is_constant:
-        depth = np.full(x0.shape, 1.0 / layer.depth.i0)
+        depth = np.full((len(times), 1, 1), 1.0 / layer.depth.i0)
     else:
-        # Where the layer is absent, X0 may leave the plane's valid side; alpha is 0 there anyway.
+        # Where the layer is absent X0 may leave the plane's valid side; its alpha is 0 there anyway.
         depth = 1.0 / np.maximum(layer.depth.inverse_depth(x0, y0), 1.0 / FAR_DEPTH)
-    depth = depth - scene.camera.depth_shift(times).reshape((-1,) + (1,) * (depth.ndim - 1))
-    return rgba, depth, x0, y0
+    depth = depth - scene.camera.depth_shift(times)[:, None, None]
+    return _Samples(index, window, rgb, alpha, depth, (x0, y0))
 
 
 def _composite(
     scene: Scene, times: np.ndarray, *, buffers: bool
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
-    """Composite all layers at `times` (n,). Returns color (n, H, W, 3), alpha (n, H, W) and, with
-    buffers=True, the visible layer's depth, index and source (n, H, W), (n, H, W), (n, H, W, 2)."""
+    """Composite all layers at `times` (n,). Returns color (3, n, H, W), alpha (n, H, W) and, with
+    buffers=True, the visible layer's depth (n, H, W), index (n, H, W) and source (2, n, H, W)."""
     height, width = scene.height, scene.width
-    xs = np.arange(width, dtype=np.float64)[None, :]
-    ys = np.arange(height, dtype=np.float64)[:, None]
     n = len(times)
     samples = []
     for index in range(len(scene.layers)):
-        if scene.is_static_layer(index):
-            # Same picture at every instant: sample once at t = 0 and broadcast.
-            rgba, depth, x0, y0 = _layer_samples(scene, index, np.zeros(1), xs, ys)
-            shape = (n, height, width)
-            samples.append(
-                (np.broadcast_to(rgba, shape + (4,)), np.broadcast_to(depth, shape), np.broadcast_to(x0, shape), np.broadcast_to(y0, shape))
-            )
-        else:
-            samples.append(_layer_samples(scene, index, times, xs, ys))
-    color = np.zeros((n, height, width, 3))
+        # A static layer shows the same picture at every instant: sample it once and broadcast.
+        at = np.zeros(1) if scene.is_static_layer(index) else times
+        sampled = _layer_samples(scene, index, at)
+        if sampled is not None:
+            samples.append(sampled)
+    color = np.zeros((3, n, height, width))
     transmittance = np.ones((n, height, width))
     visible_depth = np.full((n, height, width), FAR_DEPTH) if buffers else None
     visible_layer = np.full((n, height, width), -1, dtype=np.intp) if buffers else None
-    visible_source = np.zeros((n, height, width, 2)) if buffers else None
-    if not samples:
+    visible_source = np.zeros((2, n, height, width)) if buffers else None
+
+    def note_visible(s: _Samples, first: np.ndarray) -> None:
+        win = (slice(None),) + s.window
+        visible_depth[win] = np.where(first, s.depth, visible_depth[win])
+        visible_layer[win] = np.where(first, s.index, visible_layer[win])
+        for axis in (0, 1):
+            visible_source[(axis,) + win] = np.where(first, s.source[axis], visible_source[(axis,) + win])
+
+    if all(layer.depth.is_constant for layer in scene.layers):
+        # One depth per layer, shifted equally by the camera: one order everywhere, composited front
+        # to back (ties: the earlier layer in front).
+        for s in sorted(samples, key=lambda s: (1.0 / scene.layers[s.index].depth.i0, s.index)):
+            win = (slice(None),) + s.window
+            color[(slice(None),) + win] += transmittance[win] * s.rgb
+            if buffers:
+                covered = s.alpha >= VISIBLE_ALPHA if s.alpha is not None else True
+                note_visible(s, (visible_layer[win] < 0) & covered)
+            if s.alpha is None:
+                transmittance[win] = 0.0
+            else:
+                transmittance[win] *= 1.0 - s.alpha
         return color, 1.0 - transmittance, visible_depth, visible_layer, visible_source
 
-    constant = all(layer.depth.is_constant for layer in scene.layers)
-    if constant:
-        # Every layer has one depth, shifted equally by the camera: one order for all pixels.
-        order = sorted(range(len(scene.layers)), key=lambda i: 1.0 / scene.layers[i].depth.i0)
-        ranked = [samples[i] + (np.full((1, 1, 1), i),) for i in order]
-    else:
-        stacked = [np.stack([np.asarray(s[part]) for s in samples]) for part in range(4)]  # (L, n, H, W...)
-        order = np.argsort(stacked[1], axis=0, kind="stable")
-        ranked = []
-        for rank in range(len(samples)):
-            pick = order[rank][None]
-            parts = [np.take_along_axis(stacked[0], pick[..., None], axis=0)[0]]
-            parts += [np.take_along_axis(stacked[part], pick, axis=0)[0] for part in (1, 2, 3)]
-            ranked.append(tuple(parts) + (pick[0],))
-
-    for rgba, depth, x0, y0, index in ranked:
-        alpha = rgba[..., 3]
-        color += transmittance[..., None] * rgba[..., :3]
+    # Depth varies within a layer: per pixel and instant, layer l is seen through every layer m in
+    # front of it, color = sum_l rgb_l prod_{m in front of l} (1 - alpha_m), which is front-to-back
+    # compositing without sorting.
+    full_alpha, full_depth = [], []
+    for s in samples:
+        a = np.zeros((n, height, width))
+        d = np.full((n, height, width), np.inf)
+        win = (slice(None),) + s.window
+        a[win] = 1.0 if s.alpha is None else s.alpha
+        d[win] = s.depth
+        full_alpha.append(a)
+        full_depth.append(d)
+    for k, s in enumerate(samples):
+        win = (slice(None),) + s.window
+        through = np.ones_like(full_depth[k][win])
+        blocked = np.zeros(through.shape, dtype=bool)
+        for m in range(len(samples)):
+            if m == k:
+                continue
+            other = full_depth[m][win]
+            in_front = (other < full_depth[k][win]) | ((other == full_depth[k][win]) & (samples[m].index < s.index))
+            through = through * np.where(in_front, 1.0 - full_alpha[m][win], 1.0)
+            if buffers:
+                blocked |= in_front & (full_alpha[m][win] >= VISIBLE_ALPHA)
+        color[(slice(None),) + win] += through * s.rgb
         if buffers:
-            first = (visible_layer < 0) & (alpha >= VISIBLE_ALPHA)
-            visible_depth = np.where(first, depth, visible_depth)
-            visible_layer = np.where(first, index, visible_layer)
-            visible_source = np.where(first[..., None], np.stack([x0, y0], axis=-1), visible_source)
-        transmittance = transmittance * (1.0 - alpha)
+            covered = full_alpha[k][win] >= VISIBLE_ALPHA
+            note_visible(s, covered & ~blocked)
+        transmittance[win] *= 1.0 - full_alpha[k][win]
     return color, 1.0 - transmittance, visible_depth, visible_layer, visible_source
 
 
@@ -212,11 +268,11 @@ def render(scene: Scene, t: float = 0.0) -> Frame:
     t = checks.require_finite_number("t", t)
     color, alpha, depth, layer, source = _composite(scene, np.array([t]), buffers=True)
     return Frame(
-        color=np.ascontiguousarray(color[0].transpose(2, 0, 1)[None]),
+        color=np.ascontiguousarray(color[:, 0][None]),
         alpha=alpha[0][None, None],
         depth=depth[0][None, None],
         layer=layer[0][None, None],
-        source=np.ascontiguousarray(source[0].transpose(2, 0, 1)[None]),
+        source=np.ascontiguousarray(source[:, 0][None]),
     )
 
 
@@ -302,10 +358,10 @@ def accumulate(
     window = get_shutter(shutter)
     count = required_instants(scene) if instants is None else checks.require_positive_int("instants", instants)
     times, weights = shutter_instants(window, count)
-    moving = sum(not scene.is_static_layer(i) for i in range(len(scene.layers)))
-    chunk = max(1, _CHUNK_VALUES // (scene.height * scene.width * (8 + 7 * max(moving, 1))))
-    total = np.zeros((scene.height, scene.width, 3))
+    layers = len(scene.layers)
+    chunk = max(1, _CHUNK_VALUES // (scene.height * scene.width * (4 + 9 * max(layers, 1))))
+    total = np.zeros((3, scene.height, scene.width))
     for start in range(0, count, chunk):
         color, _, _, _, _ = _composite(scene, times[start : start + chunk], buffers=False)
-        total += np.tensordot(weights[start : start + chunk], color, axes=(0, 0))
-    return np.ascontiguousarray(total.transpose(2, 0, 1)[None]), count
+        total += np.tensordot(color, weights[start : start + chunk], axes=(1, 0))
+    return total[None], count

@@ -167,40 +167,49 @@ class ImageTexture:
             alpha = np.asarray(self.alpha, dtype=np.float64)
             if alpha.shape != color.shape[:2]:
                 raise ValueError(f"alpha must have shape {color.shape[:2]}, got {alpha.shape}")
-        rgba = np.concatenate([color * alpha[:, :, None], alpha[:, :, None]], axis=2)
-        object.__setattr__(self, "_rgba", np.ascontiguousarray(rgba))
+        planes = np.concatenate([(color * alpha[:, :, None]).transpose(2, 0, 1), alpha[None]], axis=0)
+        object.__setattr__(self, "_planes", np.ascontiguousarray(planes))
         object.__setattr__(self, "_opaque", bool(np.all(alpha == 1.0)))
         object.__setattr__(self, "origin", (int(self.origin[0]), int(self.origin[1])))
+        rows, cols = np.nonzero(alpha > 0)
+        if len(rows):
+            ox, oy = self.origin
+            # Bilinear taps reach one texel beyond the last covered one.
+            bounds = (ox + cols.min() - 1.0, ox + cols.max() + 1.0, oy + rows.min() - 1.0, oy + rows.max() + 1.0)
+        else:
+            bounds = (0.0, -1.0, 0.0, -1.0)
+        object.__setattr__(self, "_bounds", bounds)
 
     @property
     def opaque(self) -> bool:
         return self._opaque  # type: ignore[attr-defined]
 
     @property
-    def rgba(self) -> np.ndarray:
-        """(Ht, Wt, 4): premultiplied colour and alpha."""
-        return self._rgba  # type: ignore[attr-defined]
+    def planes(self) -> np.ndarray:
+        """(4, Ht, Wt): premultiplied colour and alpha, channel first."""
+        return self._planes  # type: ignore[attr-defined]
+
+    def bounds(self) -> tuple[float, float, float, float] | None:
+        """(x_min, x_max, y_min, y_max) of the layer points that can show, None if opaque (everywhere)."""
+        return None if self.opaque else self._bounds  # type: ignore[attr-defined]
 
     def support(self) -> tuple[np.ndarray, np.ndarray]:
         """Layer coordinates (x, y) of the texels with alpha > 0, flattened."""
-        rows, cols = np.nonzero(self.rgba[:, :, 3] > 0)
+        rows, cols = np.nonzero(self.planes[3] > 0)
         return cols + float(self.origin[0]), rows + float(self.origin[1])
 
-    def sample(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Bilinear premultiplied RGBA at layer coordinates (x, y) (any equal shapes): (..., 4)."""
-        rgba = self.rgba
-        th, tw = rgba.shape[:2]
-        u = np.clip(x - self.origin[0], 0.0, tw - 1.0)
-        v = np.clip(y - self.origin[1], 0.0, th - 1.0)
-        j = np.minimum(u.astype(np.intp), tw - 2)  # u >= 0, so truncation is floor
-        i = np.minimum(v.astype(np.intp), th - 2)
-        fu = (u - j)[..., None]
-        fv = (v - i)[..., None]
-        flat = rgba.reshape(-1, 4)
-        index = i * tw + j
-        top = flat[index] * (1.0 - fu) + flat[index + 1] * fu
-        bottom = flat[index + tw] * (1.0 - fu) + flat[index + tw + 1] * fu
-        return top * (1.0 - fv) + bottom * fv
+    def sample(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Bilinear premultiplied colour (3, ...) and alpha (...) at layer coordinates x, y (equal
+        shapes), clamped to the border texels; alpha is None for an opaque texture."""
+        from scipy.ndimage import map_coordinates  # scipy ships with scikit-image
+
+        coords = np.stack([y - self.origin[1], x - self.origin[0]])
+        channels = 3 if self.opaque else 4
+        out = np.empty((channels,) + x.shape)
+        for c in range(channels):
+            # order=1 is plain bilinear interpolation (no spline prefilter); 'nearest' clamps.
+            map_coordinates(self.planes[c], coords, output=out[c], order=1, mode="nearest")
+        return out[:3], (None if self.opaque else out[3])
 
 
 @dataclass(frozen=True, eq=False)
@@ -218,11 +227,20 @@ class FunctionTexture:
     def support(self) -> tuple[np.ndarray, np.ndarray]:
         return self.support_points
 
-    def sample(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    def bounds(self) -> tuple[float, float, float, float] | None:
+        if self.opaque:
+            return None
+        x, y = self.support_points
+        if len(x) == 0:
+            return (0.0, -1.0, 0.0, -1.0)
+        return (float(np.min(x)) - 1.0, float(np.max(x)) + 1.0, float(np.min(y)) - 1.0, float(np.max(y)) + 1.0)
+
+    def sample(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         color, alpha = self.fn(x, y)
         alpha = np.broadcast_to(np.asarray(alpha, dtype=np.float64), x.shape)
         color = np.broadcast_to(np.asarray(color, dtype=np.float64), x.shape + (3,))
-        return np.concatenate([color * alpha[..., None], alpha[..., None]], axis=-1)
+        rgb = np.moveaxis(color, -1, 0) * alpha[None]
+        return rgb, (None if self.opaque else alpha)
 
 
 def pad(color: np.ndarray, alpha: np.ndarray, origin: tuple[int, int], border: int = 2) -> ImageTexture:
