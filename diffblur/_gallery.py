@@ -33,7 +33,11 @@ def save_gallery(out_dir: str | os.PathLike, *, height: int, width: int) -> str:
         panels = [
             (to_display(scene.color)[0], f"{name}: sharp (t = 0)", {}),
             (to_display(scene.target)[0], f"target, {scene.instants} instants, {seconds:.2f} s", {}),
-            (velocity_to_color(scene.velocity, max_magnitude=top)[0].transpose(1, 2, 0), f"velocity, max {top:.1f} px", {}),
+            (
+                velocity_to_color(scene.velocity, max_magnitude=top)[0].transpose(1, 2, 0),
+                f"velocity, max {top:.1f} px",
+                {},
+            ),
             (scene.depth[0, 0], f"depth {scene.depth.min():.3g} .. {scene.depth.max():.3g}", {"cmap": "viridis_r"}),
         ]
         for col, (image, title, kw) in enumerate(panels):

@@ -53,7 +53,9 @@ def _photo_linear(name: str) -> np.ndarray:
     return image
 
 
-def photo(name: str, height: int, width: int, *, zoom: float = 1.0, focus: tuple[float, float] = (0.5, 0.5)) -> np.ndarray:
+def photo(
+    name: str, height: int, width: int, *, zoom: float = 1.0, focus: tuple[float, float] = (0.5, 0.5)
+) -> np.ndarray:
     """A scikit-image photograph, linear RGB, (height, width, 3) float64 in [0, 1].
 
     The largest crop of the photograph with the target's aspect ratio, shrunk by `zoom` (>= 1 crops
@@ -217,7 +219,9 @@ class FunctionTexture:
     """An analytic texture: fn(x, y) -> (color (..., 3) linear RGB, alpha (...)) at layer coordinates.
 
     Sampled at points (no filtering): a hard-edged shape stays hard-edged, as the analytic orbiting
-    disk of seed 004 needs. `support` gives the layer points that count for the instant rule.
+    disk of seed 004 needs. support_points (x (N,), y (N,)), pixels: layer points spaced at most one
+    pixel apart covering everything with alpha > 0; they bound the layer's footprint and set the
+    instant rule. opaque: alpha is 1 everywhere (then the points are not used for bounds).
     """
 
     fn: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]

@@ -166,7 +166,9 @@ def error_map_figure(
     for b in range(batch):
         p_db = psnr(prediction[b : b + 1], target[b : b + 1], data_range=data_range)
         win = min(7, min_side if min_side % 2 else min_side - 1)
-        s = ssim(prediction[b : b + 1], target[b : b + 1], data_range=data_range, win_size=win) if win >= 3 else float("nan")
+        s = float("nan")
+        if win >= 3:
+            s = ssim(prediction[b : b + 1], target[b : b + 1], data_range=data_range, win_size=win)
         for ax, image, title in ((axes[b, 0], shown_p[b], titles[0]), (axes[b, 1], shown_t[b], titles[1])):
             ax.imshow(image.squeeze(), cmap="gray" if image.shape[-1] == 1 else None, vmin=0, vmax=1)
             ax.set_title(title)

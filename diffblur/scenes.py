@@ -124,9 +124,13 @@ def render_buffers(
     velocity = 0.5 * (positions[1] - positions[0])[None]
     target, count = accumulate(scene, shutter=window, instants=instants)
     background = None
-    if scene.layers and scene.is_static_layer(0) and scene.layers[0].texture.opaque:
-        only = Scene(scene.height, scene.width, scene.layers[:1], scene.camera)
-        background = render(only, 0.0).color
+    # The background: the farthest opaque layer of constant depth, given only if it does not move.
+    opaque = [i for i, layer in enumerate(scene.layers) if layer.texture.opaque and layer.depth.is_constant]
+    if opaque:
+        farthest = min(opaque, key=lambda i: scene.layers[i].depth.i0)
+        if scene.is_static_layer(farthest):
+            only = Scene(scene.height, scene.width, (scene.layers[farthest],), scene.camera)
+            background = render(only, 0.0).color
     return SceneBuffers(
         name=name,
         color=frame.color,

@@ -149,7 +149,8 @@ def test_orbiting_disk_formula_matches_brute_force(geometry, shutter):
     cx, cy = geometry["center"]
     # Points along the orbit (where the density varies) and a few random ones.
     angles = rng.uniform(-np.pi, np.pi, 10)
-    points = [(int(round(cx + geometry["orbit_radius"] * np.cos(a))), int(round(cy + geometry["orbit_radius"] * np.sin(a)))) for a in angles]
+    radius = geometry["orbit_radius"]
+    points = [(int(round(cx + radius * np.cos(a))), int(round(cy + radius * np.sin(a)))) for a in angles]
     points += [tuple(p) for p in rng.integers([0, 0], [64, 60], size=(6, 2))]
     for x, y in points:
         expected = _brute_force_density(x, y, shutter=shutter, **geometry)
@@ -287,7 +288,8 @@ def test_curved_and_affine_offsets_differ_from_linear(presets):
     disk = crossing.scene.layers[1]
     assert isinstance(disk.motion, CurvedPath)
     on_disk = render(crossing.scene).layer[0, 0] == 1
-    np.testing.assert_allclose(bend[0, :, on_disk].T, np.broadcast_to(np.array(disk.motion.acceleration)[:, None], (2, on_disk.sum())), atol=1e-12)
+    acceleration = np.array(disk.motion.acceleration)[:, None]
+    np.testing.assert_allclose(bend[0][:, on_disk], np.broadcast_to(acceleration, (2, on_disk.sum())), atol=1e-12)
 
 
 def test_default_instants_keep_steps_below_a_quarter_pixel(presets):
@@ -306,7 +308,8 @@ def test_buffers_shapes_and_conventions(presets):
     for name, buffers in presets.items():
         h, w = SIZE, SIZE + 8
         assert buffers.name == name
-        for field, channels in (("color", 3), ("target", 3), ("depth", 1), ("velocity", 2), ("offset_prev", 2), ("offset_next", 2)):
+        fields = (("color", 3), ("target", 3), ("depth", 1), ("velocity", 2), ("offset_prev", 2), ("offset_next", 2))
+        for field, channels in fields:
             array = getattr(buffers, field)
             assert array.shape == (1, channels, h, w), (name, field)
             assert array.dtype == np.float64 and np.all(np.isfinite(array))
