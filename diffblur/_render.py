@@ -233,33 +233,36 @@ def _composite(
 
     # Depth varies within a layer: per pixel and instant, layer l is seen through every layer m in
     # front of it, color = sum_l rgb_l prod_{m in front of l} (1 - alpha_m), which is front-to-back
-    # compositing without sorting.
-    full_alpha, full_depth = [], []
-    for s in samples:
-        a = np.zeros((n, height, width))
-        d = np.full((n, height, width), np.inf)
-        win = (slice(None),) + s.window
-        a[win] = 1.0 if s.alpha is None else s.alpha
-        d[win] = s.depth
-        full_alpha.append(a)
-        full_depth.append(d)
+    # compositing without sorting. Only where the footprints of l and m overlap does m matter.
+    def alpha_of(s: _Samples) -> np.ndarray:
+        shape = (s.rgb.shape[1], s.window[0].stop - s.window[0].start, s.window[1].stop - s.window[1].start)
+        return np.ones(shape) if s.alpha is None else s.alpha
+
     for k, s in enumerate(samples):
-        win = (slice(None),) + s.window
-        through = np.ones_like(full_depth[k][win])
+        alpha_k = alpha_of(s)
+        depth_k = np.broadcast_to(s.depth, alpha_k.shape)
+        through = np.ones((n,) + alpha_k.shape[1:])
         blocked = np.zeros(through.shape, dtype=bool)
-        for m in range(len(samples)):
-            if m == k:
+        for m, other in enumerate(samples):
+            rows = slice(max(s.window[0].start, other.window[0].start), min(s.window[0].stop, other.window[0].stop))
+            cols = slice(max(s.window[1].start, other.window[1].start), min(s.window[1].stop, other.window[1].stop))
+            if m == k or rows.start >= rows.stop or cols.start >= cols.stop:
                 continue
-            other = full_depth[m][win]
-            in_front = (other < full_depth[k][win]) | ((other == full_depth[k][win]) & (samples[m].index < s.index))
-            through = through * np.where(in_front, 1.0 - full_alpha[m][win], 1.0)
+            mine = (slice(None), slice(rows.start - s.window[0].start, rows.stop - s.window[0].start),
+                    slice(cols.start - s.window[1].start, cols.stop - s.window[1].start))
+            theirs = (slice(None), slice(rows.start - other.window[0].start, rows.stop - other.window[0].start),
+                      slice(cols.start - other.window[1].start, cols.stop - other.window[1].start))
+            alpha_m = alpha_of(other)[theirs]
+            depth_m = np.broadcast_to(other.depth, alpha_of(other).shape)[theirs]
+            in_front = (depth_m < depth_k[mine]) | ((depth_m == depth_k[mine]) & (other.index < s.index))
+            through[mine] = through[mine] * np.where(in_front, 1.0 - alpha_m, 1.0)
             if buffers:
-                blocked |= in_front & (full_alpha[m][win] >= VISIBLE_ALPHA)
+                blocked[mine] |= in_front & (alpha_m >= VISIBLE_ALPHA)
+        win = (slice(None),) + s.window
         color[(slice(None),) + win] += through * s.rgb
         if buffers:
-            covered = full_alpha[k][win] >= VISIBLE_ALPHA
-            note_visible(s, covered & ~blocked)
-        transmittance[win] *= 1.0 - full_alpha[k][win]
+            note_visible(s, (alpha_k >= VISIBLE_ALPHA) & ~blocked)
+        transmittance[win] *= 1.0 - alpha_k
     return color, 1.0 - transmittance, visible_depth, visible_layer, visible_source
 
 
