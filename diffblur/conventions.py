@@ -37,6 +37,11 @@ DEFAULT_MAX_RADIUS = 20.0
 DEFAULT_MIN_RADIUS = 0.5
 DEFAULT_SAMPLES = 15
 
+#: How filters read the image between pixel centres: "bilinear" (differentiable in the positions,
+#: the default) or "nearest" (rounded to the nearest pixel, as the documents do; no gradient
+#: through positions).
+SAMPLING_MODES = ("bilinear", "nearest")
+
 #: The cylinder classifier's smoothstep runs from CYLINDER_INNER to CYLINDER_OUTER times the speed
 #: (seed 000, Figure 4).
 CYLINDER_INNER = 0.95
@@ -59,6 +64,7 @@ __all__ = [
     "IGN_A",
     "IGN_B",
     "IGN_C",
+    "SAMPLING_MODES",
     "VECTOR_CHANNELS",
     "X_CHANNEL",
     "Y_CHANNEL",

@@ -3,6 +3,7 @@
 Mirrors `torch_impl` name by name; conventions in `diffblur.conventions`.
 """
 
+from jax_impl._gather import gather_blur
 from jax_impl._primitives import (
     cone,
     cylinder,
@@ -17,6 +18,7 @@ from jax_impl._primitives import (
 __all__ = [
     "cone",
     "cylinder",
+    "gather_blur",
     "interleaved_gradient_noise",
     "neighbor_max",
     "safe_length",

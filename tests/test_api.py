@@ -86,6 +86,7 @@ def _valid_calls(backend):
         "tile_max": lambda f: f(image(2), 4),
         "neighbor_max": lambda f: f(ops.tile_max(image(2), 4)),
         "interleaved_gradient_noise": lambda f: f(9, 10),
+        "gather_blur": lambda f: f(image(3), image(2), samples=3),
     }
 
 

@@ -3,6 +3,7 @@
 Mirrors `jax_impl` name by name; conventions in `diffblur.conventions`.
 """
 
+from torch_impl._gather import gather_blur
 from torch_impl._primitives import (
     cone,
     cylinder,
@@ -17,6 +18,7 @@ from torch_impl._primitives import (
 __all__ = [
     "cone",
     "cylinder",
+    "gather_blur",
     "interleaved_gradient_noise",
     "neighbor_max",
     "safe_length",

@@ -15,6 +15,7 @@ import numpy as np
 import jax_impl
 import torch_impl
 from diffblur import reference
+from diffblur.shutters import Tukey
 
 
 @dataclass(frozen=True)
@@ -128,6 +129,38 @@ CASES = [
         torch_impl.neighbor_max,
         jax_impl.neighbor_max,
         differentiable=("tile_velocity",),
+    ),
+]
+
+
+
+def _color_velocity(rng):
+    return {"color": rng.random((2, 3, 6, 7)), "velocity": rng.normal(size=(2, 2, 6, 7)) * 2.5}
+
+
+def _gather_case(name, sampling, shutter="box", differentiable=("color", "velocity")):
+    options = dict(samples=5, sampling=sampling, shutter=shutter)
+    return Case(
+        name,
+        _color_velocity,
+        lambda **a: reference.gather_blur(**a, **options),
+        lambda **a: torch_impl.gather_blur(**a, **options),
+        lambda **a: jax_impl.gather_blur(**a, **options),
+        differentiable=differentiable,
+    )
+
+
+CASES += [
+    _gather_case("gather_blur_bilinear", "bilinear"),
+    _gather_case("gather_blur_nearest", "nearest", differentiable=("color",)),
+    _gather_case("gather_blur_tent", "bilinear", shutter="tent"),
+    Case(
+        "gather_blur_tukey_shape",
+        lambda rng: dict(_color_velocity(rng), taper=np.array(0.4)),
+        lambda taper, **a: reference.gather_blur(**a, samples=5, shutter=Tukey(taper)),
+        lambda taper, **a: torch_impl.gather_blur(**a, samples=5, shutter=Tukey(taper)),
+        lambda taper, **a: jax_impl.gather_blur(**a, samples=5, shutter=Tukey(taper)),
+        differentiable=("velocity", "taper"),
     ),
 ]
 

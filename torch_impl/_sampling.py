@@ -1,0 +1,51 @@
+"""Reading an image at per-pixel positions, bilinear or nearest, clamped to the border."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+
+def _clamp(x: Tensor, high: float) -> Tensor:
+    # where, not clamp: the gradient at the border is the inside's, as in the JAX backend.
+    return torch.where(x < 0, 0.0, torch.where(x > high, high, x))
+
+
+def _gather(flat: Tensor, row: Tensor, column: Tensor, width: int) -> Tensor:
+    """flat (B, C, H*W) at integer (row, column) of shape (B, H', W') -> (B, C, H', W')."""
+    batch, channels, _ = flat.shape
+    index = (row * width + column).reshape(batch, 1, -1).expand(batch, channels, -1)
+    return torch.gather(flat, 2, index).reshape(batch, channels, *row.shape[1:])
+
+
+def sample(image: Tensor, x: Tensor, y: Tensor, mode: str) -> Tensor:
+    """image (B, C, H, W) at positions x, y (B, H', W') in pixels (centres at integers).
+
+    "bilinear" is differentiable in image, x and y; "nearest" rounds halves up (seed 000's
+    [p + 0.5]) and is differentiable in image only. Positions beyond the border read the border.
+    """
+    batch, channels, height, width = image.shape
+    flat = image.reshape(batch, channels, height * width)
+    x = _clamp(x, width - 1.0)
+    y = _clamp(y, height - 1.0)
+    if mode == "nearest":
+        column = torch.floor(x + 0.5).long().clamp(max=width - 1)
+        row = torch.floor(y + 0.5).long().clamp(max=height - 1)
+        return _gather(flat, row, column, width)
+    x0 = torch.floor(x)
+    y0 = torch.floor(y)
+    fx = (x - x0).unsqueeze(1)
+    fy = (y - y0).unsqueeze(1)
+    column0, row0 = x0.long(), y0.long()
+    column1 = (column0 + 1).clamp(max=width - 1)
+    row1 = (row0 + 1).clamp(max=height - 1)
+    top = _gather(flat, row0, column0, width) * (1 - fx) + _gather(flat, row0, column1, width) * fx
+    bottom = _gather(flat, row1, column0, width) * (1 - fx) + _gather(flat, row1, column1, width) * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def pixel_grid(height: int, width: int, like: Tensor) -> tuple[Tensor, Tensor]:
+    """Column (x) and row (y) coordinates of the pixel centres, (1, H, W) each, like's dtype/device."""
+    y = torch.arange(height, dtype=like.dtype, device=like.device).reshape(1, height, 1).expand(1, height, width)
+    x = torch.arange(width, dtype=like.dtype, device=like.device).reshape(1, 1, width).expand(1, height, width)
+    return x, y
