@@ -165,3 +165,9 @@ CASES += [
 ]
 
 CASES_BY_NAME = {case.name: case for case in CASES}
+
+# Ops developed in their own modules register their cases there.
+from tests.equivalence.cases_scatter import CASES as _SCATTER_CASES  # noqa: E402
+
+CASES += _SCATTER_CASES
+CASES_BY_NAME = {case.name: case for case in CASES}
