@@ -1,0 +1,5 @@
+import sys
+
+from diffblur.cli import main
+
+sys.exit(main())
