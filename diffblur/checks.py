@@ -156,3 +156,16 @@ def require_finite_number(name: str, value: object) -> float:
 
 
 __all__ += ["require_finite_number"]
+
+
+def require_int_choice(name: str, value: object, allowed: Sequence[int]) -> int:
+    """Check that `value` is an integer (not a bool) among `allowed`, e.g. a curve degree."""
+    listed = ", ".join(str(a) for a in allowed)
+    if not isinstance(value, numbers.Integral) or isinstance(value, bool):
+        raise TypeError(f"{name} must be an integer, one of {listed}; got {value!r}")
+    if int(value) not in allowed:
+        raise ValueError(f"{name} must be one of {listed}; got {value}")
+    return int(value)
+
+
+__all__ += ["require_int_choice"]

@@ -244,3 +244,8 @@ def gather_blur(
                 for tau, mass in zip(times, masses):
                     out[b, :, i, j] += mass * sample(color[b], j - tau * vx, i - tau * vy)
     return out
+
+
+from diffblur._reference_scatter import bezier_control_points, bezier_scatter  # noqa: E402
+
+__all__ += ["bezier_control_points", "bezier_scatter"]

@@ -1,0 +1,201 @@
+"""NumPy reference of the Bezier scatter of seed 003 (Guertin & Nowrouzezahrai 2015): the oracle.
+
+Written for clarity: one loop over the moving pixels, one over the points of each curve, one over the
+four pixels a point splats onto. The curves are written in Bezier form with their control points, as
+the paper does (the backends use the power basis in t, an independent formulation).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from diffblur import checks
+from diffblur._scatter_options import (
+    DEFAULT_BACKGROUND_WEIGHT,
+    DEFAULT_MAX_SAMPLES,
+    DEFAULT_NORMALIZATION,
+    DEFAULT_SHUTTER,
+    DEFAULT_SOFT_Z_EXTENT,
+    MID_PREV_TIME,
+    length_times,
+    point_count,
+    point_masses,
+    point_times,
+    resolve_options,
+    resolve_path,
+)
+from diffblur.conventions import DEPTH_CHANNELS
+from diffblur.shutters import ShutterWindow, get_shutter
+
+__all__ = ["bezier_control_points", "bezier_scatter"]
+
+
+def _bernstein(degree: int, s: float) -> list[float]:
+    return [math.comb(degree, i) * (1.0 - s) ** (degree - i) * s**i for i in range(degree + 1)]
+
+
+def bezier_control_points(positions: list[np.ndarray], degree: int) -> list[np.ndarray]:
+    """Control points B_0..B_degree of the Bezier curve B(s), s = (t + 1) / 2, through given positions.
+
+    positions: degree 1: [p(-1), p(1)]; degree 2: [p(-1), p(0), p(1)]; degree 3: [p(-1), p(-1/2), p(0),
+    p(1)] (each a 2-vector). Degree 2 uses the corrected control point of seed 003 sec. 3.2 (see the
+    ERRATA): B1 = 2 p(0) - (p(-1) + p(1)) / 2, so that B(1/2) = p(0).
+    """
+    if degree == 1:
+        return [positions[0], positions[1]]
+    if degree == 2:
+        p_prev, p_mid, p_next = positions
+        return [p_prev, 2.0 * p_mid - 0.5 * (p_prev + p_next), p_next]
+    # Cubic: B0 = p(-1), B3 = p(1); B1 and B2 from B(s1) = p(-1/2) and B(1/2) = p(0).
+    p_prev, p_quarter, p_mid, p_next = positions
+    s1 = 0.5 * (MID_PREV_TIME + 1.0)
+    rows, rhs = [], []
+    for s, p in ((s1, p_quarter), (0.5, p_mid)):
+        b = _bernstein(3, s)
+        rows.append([b[1], b[2]])
+        rhs.append(p - b[0] * p_prev - b[3] * p_next)
+    inner = np.linalg.solve(np.array(rows), np.array(rhs))
+    return [p_prev, inner[0], inner[1], p_next]
+
+
+def _bezier_point(control: list[np.ndarray], s: float) -> np.ndarray:
+    """B(s) = sum_i C(n, i) (1 - s)^(n - i) s^i B_i (seed 003 eq. 1, with its (1 - s)^2 erratum fixed)."""
+    degree = len(control) - 1
+    return sum(w * b for w, b in zip(_bernstein(degree, s), control))
+
+
+def _bezier_speed(control: list[np.ndarray], s: float) -> float:
+    """|dB/dt| = |dB/ds| / 2, dB/ds = n sum_i b_{n-1,i}(s) (B_{i+1} - B_i)."""
+    degree = len(control) - 1
+    weights = _bernstein(degree - 1, s)
+    derivative = degree * sum(w * (control[i + 1] - control[i]) for i, w in enumerate(weights))
+    return 0.5 * math.hypot(derivative[0], derivative[1])
+
+
+def _arc_point(center: np.ndarray, angle: float, x: np.ndarray, t: float) -> np.ndarray:
+    cos, sin = math.cos(angle * t), math.sin(angle * t)
+    r = x - center
+    return center + np.array([cos * r[0] - sin * r[1], sin * r[0] + cos * r[1]])
+
+
+def _bilinear_splat(x: float, y: float, height: int, width: int) -> list[tuple[int, int, float]]:
+    """The pixels (row, column) a point at (x, y) lands on, with their bilinear weights; pixels outside
+    the image are dropped (what leaves the frame is lost)."""
+    x0, y0 = math.floor(x), math.floor(y)
+    fx, fy = x - x0, y - y0
+    corners = [(y0, x0, (1 - fx) * (1 - fy)), (y0, x0 + 1, fx * (1 - fy)), (y0 + 1, x0, (1 - fx) * fy), (y0 + 1, x0 + 1, fx * fy)]
+    return [(r, c, w) for r, c, w in corners if 0 <= r < height and 0 <= c < width]
+
+
+def _soft_in_front(z_destination: float, z_source: float, extent: float) -> float:
+    """Seed 000's softDepthCompare(z_a = destination, z_b = source) for positive depth."""
+    return min(max(1.0 - (z_source - z_destination) / extent, 0.0), 1.0)
+
+
+def bezier_scatter(
+    color: np.ndarray,
+    depth: np.ndarray,
+    offset_prev: np.ndarray | None,
+    offset_next: np.ndarray | None,
+    *,
+    degree: int = 2,
+    offset_mid_prev: np.ndarray | None = None,
+    arc_center: np.ndarray | None = None,
+    arc_angle: np.ndarray | None = None,
+    samples: int | None = None,
+    max_samples: int = DEFAULT_MAX_SAMPLES,
+    shutter: str | ShutterWindow = DEFAULT_SHUTTER,
+    normalization: str = DEFAULT_NORMALIZATION,
+    background: np.ndarray | None = None,
+    background_weight: float = DEFAULT_BACKGROUND_WEIGHT,
+    soft_z_extent: float | np.ndarray = DEFAULT_SOFT_Z_EXTENT,
+) -> np.ndarray:
+    """Seed 003's scatter: every moving pixel splats its colour along its path over the exposure.
+
+    See `torch_impl.bezier_scatter` for the arguments. Per moving source pixel S (still pixels, whose
+    path is the point S itself, are skipped) and per point k at time t_k with shutter mass m_k, the
+    point p_S(t_k) splats bilinearly onto up to four pixels D with weight
+
+        omega = bilinear(D) * softDepthCompare(depth[D], depth[S], soft_z_extent) * m_k * f,
+
+    f = 1 ("coverage") or 2 |p_S'(t_k)| ("paper": weight per pixel of path length, 1 for the box
+    shutter), adding omega * color[S] to A[D] and omega to alpha[D]. Then, with fill = background where
+    the pixel moves and `background` is given, else color:
+
+        coverage: (A + max(1 - alpha, 0) fill) / max(alpha, 1)
+        paper:    (A + w_b fill) / (alpha + w_b)
+    """
+    path = resolve_path(
+        degree,
+        offset_prev=offset_prev is not None,
+        offset_next=offset_next is not None,
+        offset_mid_prev=offset_mid_prev is not None,
+        arc_center=arc_center is not None,
+        arc_angle=arc_angle is not None,
+    )
+    samples, max_samples, normalization, background_weight = resolve_options(
+        samples=samples, max_samples=max_samples, normalization=normalization, background_weight=background_weight
+    )
+    batch, channels, height, width = checks.require_image("color", color.shape)
+    checks.require_image("depth", depth.shape, channels=DEPTH_CHANNELS)
+    extent = float(soft_z_extent)
+    window = get_shutter(shutter)
+
+    def curve(b: int, i: int, j: int):
+        """(moving, position(t), speed(t)) of the point seen at row i, column j."""
+        x = np.array([float(j), float(i)])
+        if path == "arc":
+            center, angle = arc_center[b, :, i, j], float(arc_angle[b, 0, i, j])
+            radius = math.hypot(*(x - center))
+            return (angle != 0.0 and radius != 0.0), (lambda t: _arc_point(center, angle, x, t)), (lambda t: abs(angle) * radius)
+        offsets = [offset_prev[b, :, i, j], offset_next[b, :, i, j]]
+        if degree == 1:
+            positions = [x + offsets[0], x + offsets[1]]
+        elif degree == 2:
+            positions = [x + offsets[0], x, x + offsets[1]]
+        else:
+            offsets.append(offset_mid_prev[b, :, i, j])
+            positions = [x + offsets[0], x + offsets[2], x, x + offsets[1]]
+        control = bezier_control_points(positions, degree)
+        moving = any(np.any(o != 0) for o in offsets)
+        return moving, (lambda t: _bezier_point(control, 0.5 * (t + 1.0))), (lambda t: _bezier_speed(control, 0.5 * (t + 1.0)))
+
+    if samples is None:
+        longest = 0.0
+        for b in range(batch):
+            for i in range(height):
+                for j in range(width):
+                    _, position, _ = curve(b, i, j)
+                    polyline = [position(t) for t in length_times()]
+                    length = sum(math.hypot(*(q - p)) for p, q in zip(polyline[:-1], polyline[1:]))
+                    longest = max(longest, length)
+        samples = point_count(longest, max_samples)
+    times = point_times(samples)
+    masses = point_masses(window, np.array(times), samples, np)
+
+    accumulated = np.zeros_like(color)
+    alpha = np.zeros((batch, 1, height, width), dtype=color.dtype)
+    moving_pixels = np.zeros((batch, 1, height, width), dtype=bool)
+    for b in range(batch):
+        for i in range(height):
+            for j in range(width):
+                moving, position, speed = curve(b, i, j)
+                moving_pixels[b, 0, i, j] = moving
+                if not moving:
+                    continue  # seed 003: motionless pixels are discarded before segment generation
+                for t, mass in zip(times, masses):
+                    x, y = position(t)
+                    weight = mass if normalization == "coverage" else 2.0 * mass * speed(t)
+                    for row, column, bilinear in _bilinear_splat(x, y, height, width):
+                        test = _soft_in_front(depth[b, 0, row, column], depth[b, 0, i, j], extent)
+                        omega = bilinear * test * weight
+                        accumulated[b, :, row, column] += omega * color[b, :, i, j]
+                        alpha[b, 0, row, column] += omega
+
+    fill = color if background is None else np.where(moving_pixels, background, color)
+    if normalization == "coverage":
+        uncovered = np.maximum(1.0 - alpha, 0.0)
+        return (accumulated + uncovered * fill) / np.maximum(alpha, 1.0)
+    return (accumulated + background_weight * fill) / (alpha + background_weight)

@@ -1,0 +1,152 @@
+"""Framework-neutral pieces of the Bezier scatter (seed 003): defaults, option checks, and where the
+points of a curve sit in the exposure.
+
+The NumPy reference and both backends resolve their options here, so the three accept the same
+arguments, count points the same way and place them at the same instants.
+
+Paths. Each moving pixel X follows a path p(t) over the exposure t in [-1, 1], in image coordinates:
+
+| path | given | p(t) |
+|---|---|---|
+| degree 1 | offset_prev, offset_next | the segment from X + offset_prev to X + offset_next |
+| degree 2 | offset_prev, offset_next | the quadratic Bezier through X + offset_prev, X, X + offset_next at t = -1, 0, 1 |
+| degree 3 | + offset_mid_prev | the cubic through those and X + offset_mid_prev at t = MID_PREV_TIME = -1/2 |
+| arc | arc_center, arc_angle | c + R(angle t) (X - c): a rotation about c by `angle` radians at t = 1 |
+
+Points. A curve carries `count` points at the midpoints t_k of `count` equal strata of the exposure;
+point k carries the shutter's exact mass m_k on its stratum (renormalised to sum to 1), as the gather
+does (`diffblur.taps`). The automatic count is one point per pixel of the longest curve, capped.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from diffblur import checks
+from diffblur.shutters import ShutterWindow
+from diffblur.taps import stratum_weights
+
+__all__ = [
+    "DEFAULT_BACKGROUND_WEIGHT",
+    "DEFAULT_MAX_SAMPLES",
+    "DEFAULT_NORMALIZATION",
+    "DEFAULT_SHUTTER",
+    "DEFAULT_SOFT_Z_EXTENT",
+    "DEGREES",
+    "LENGTH_SEGMENTS",
+    "MID_PREV_TIME",
+    "NORMALIZATIONS",
+    "length_times",
+    "point_count",
+    "point_masses",
+    "point_times",
+    "resolve_options",
+    "resolve_path",
+    "traced_count_message",
+]
+
+#: "coverage": every moving point spreads total weight 1 over its exposure (its time density); a pixel
+#: keeps its own colour for the fraction of the exposure nothing covers it, and where coverage exceeds
+#: 1 the sum is normalised. "paper": seed 003 eq. 4, (A + w_b c) / (alpha + w_b), with weights per
+#: pixel of path length (as rasterised lines deposit them) and a constant background weight w_b.
+NORMALIZATIONS = ("coverage", "paper")
+#: The normalisation closer to the ground truth on the translate, propeller and gears presets.
+DEFAULT_NORMALIZATION = "coverage"
+#: Bezier degrees: 1 (segment), 2 (seed 003's quadratic), 3 (seed 003 sec. 5.1's cubic).
+DEGREES = (1, 2, 3)
+#: Seed 003 weighs the points of a curve with a Gaussian.
+DEFAULT_SHUTTER = "gaussian"
+#: Cap of the automatic point count (one point per pixel of the longest curve).
+DEFAULT_MAX_SAMPLES = 32
+#: Depth units: a splat counts fully where its source is in front of the destination or level with
+#: it, fading to nothing `soft_z_extent` behind (seed 000 uses 1 mm to 10 cm).
+DEFAULT_SOFT_Z_EXTENT = 0.1
+#: Seed 003's w_b (sec. 4), used by normalization="paper".
+DEFAULT_BACKGROUND_WEIGHT = 5.0
+#: The instant of the cubic's extra position (seed 003 sec. 5.1 names t = -1/2 or t = -2).
+MID_PREV_TIME = -0.5
+#: Segments of the polyline that measures a curve's length for the automatic point count.
+LENGTH_SEGMENTS = 16
+
+
+def resolve_path(
+    degree: object,
+    *,
+    offset_prev: bool,
+    offset_next: bool,
+    offset_mid_prev: bool,
+    arc_center: bool,
+    arc_angle: bool,
+) -> str:
+    """'bezier' or 'arc', from the degree and which of the optional fields were given (True = given)."""
+    degree = checks.require_int_choice("degree", degree, DEGREES)
+    if arc_center or arc_angle:
+        if not (arc_center and arc_angle):
+            missing = "arc_angle" if arc_center else "arc_center"
+            raise ValueError(f"arc_center and arc_angle must be given together, got {missing}=None")
+        given = [n for n, g in (("offset_prev", offset_prev), ("offset_next", offset_next), ("offset_mid_prev", offset_mid_prev)) if g]
+        if given:
+            raise ValueError(
+                f"{given[0]} must be None with arc_center and arc_angle (the arc is the path), got an array"
+            )
+        if degree != 2:
+            raise ValueError(f"degree applies to Bezier paths and must stay 2 with arc_center and arc_angle, got {degree}")
+        return "arc"
+    for name, given_field in (("offset_prev", offset_prev), ("offset_next", offset_next)):
+        if not given_field:
+            raise ValueError(f"{name} must be a (B, 2, H, W) array (or pass arc_center and arc_angle), got None")
+    if degree == 3 and not offset_mid_prev:
+        raise ValueError(
+            "offset_mid_prev must be a (B, 2, H, W) array with degree=3 (where the point is at t = -1/2, "
+            "relative to X), got None"
+        )
+    if degree != 3 and offset_mid_prev:
+        raise ValueError(f"offset_mid_prev is used only with degree=3, got degree={degree}")
+    return "bezier"
+
+
+def resolve_options(
+    *, samples: object, max_samples: object, normalization: object, background_weight: object
+) -> tuple[int | None, int, str, float]:
+    """(samples or None, max_samples, normalization, background_weight), checked."""
+    if samples is not None:
+        samples = checks.require_positive_int("samples", samples)
+    max_samples = checks.require_positive_int("max_samples", max_samples)
+    normalization = checks.require_choice("normalization", normalization, NORMALIZATIONS)
+    background_weight = checks.require_positive_number("background_weight", background_weight)
+    if math.isinf(background_weight):
+        raise ValueError(f"background_weight must be finite, got {background_weight}")
+    return samples, max_samples, normalization, background_weight
+
+
+def point_times(count: int) -> tuple[float, ...]:
+    """Midpoints of `count` equal strata of [-1, 1], as Python floats (constants to a compiler)."""
+    return tuple((2.0 * k + 1.0) / count - 1.0 for k in range(count))
+
+
+def point_masses(window: ShutterWindow, times: Any, count: int, xp: Any) -> Any:
+    """The shutter's mass on each point's stratum, renormalised to sum to 1 (differentiable in the
+    window's parameters when they are `xp` arrays)."""
+    masses = stratum_weights(window, times, 1.0 / count, xp)
+    return masses / masses.sum()
+
+
+def length_times() -> tuple[float, ...]:
+    """The instants of the polyline that measures a curve's length: LENGTH_SEGMENTS + 1 from -1 to 1."""
+    return tuple(-1.0 + 2.0 * k / LENGTH_SEGMENTS for k in range(LENGTH_SEGMENTS + 1))
+
+
+def point_count(max_length: float, max_samples: int) -> int:
+    """One point per pixel of the longest curve (`max_length` pixels), at least 1, at most max_samples."""
+    if not math.isfinite(max_length):
+        return max_samples
+    return int(min(max(math.ceil(max_length), 1), max_samples))
+
+
+def traced_count_message(framework: str) -> str:
+    """The error for samples=None while tracing: the count sets shapes and must be a Python int."""
+    return (
+        f"samples=None measures the curves to choose the point count, which needs concrete arrays; "
+        f"under {framework} pass samples=<int> (a static count, e.g. max_samples)"
+    )
