@@ -37,6 +37,16 @@ DEFAULT_MAX_RADIUS = 20.0
 DEFAULT_MIN_RADIUS = 0.5
 DEFAULT_SAMPLES = 15
 
+#: Default soft depth band of `reconstruct`, in depth units (seed 000 uses 1 mm to 10 cm in metres).
+DEFAULT_SOFT_Z_EXTENT = 0.1
+
+#: The jitter options of `reconstruct` besides an array: interleaved gradient noise, or none.
+JITTER_MODES = ("noise", "none")
+
+#: Which directions `reconstruct` takes its taps along: the neighbourhood's dominant velocity
+#: (seed 000), or alternately that and the pixel's own velocity (seed 000 sec. 4.3, future work).
+TAP_DIRECTIONS = ("neighbor", "neighbor_and_own")
+
 #: How filters read the image between pixel centres: "bilinear" (differentiable in the positions,
 #: the default) or "nearest" (rounded to the nearest pixel, as the documents do; no gradient
 #: through positions).
@@ -59,6 +69,9 @@ __all__ = [
     "DEFAULT_MAX_RADIUS",
     "DEFAULT_MIN_RADIUS",
     "DEFAULT_SAMPLES",
+    "DEFAULT_SOFT_Z_EXTENT",
+    "JITTER_MODES",
+    "TAP_DIRECTIONS",
     "DEPTH_CHANNELS",
     "EPSILON",
     "IGN_A",

@@ -9,19 +9,15 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Float
 
-from diffblur import checks
+from diffblur import checks, reference
 from diffblur.conventions import (
     CYLINDER_INNER,
     CYLINDER_OUTER,
     DEFAULT_MAX_RADIUS,
     DEFAULT_MIN_RADIUS,
     EPSILON,
-    IGN_A,
-    IGN_B,
-    IGN_C,
     VECTOR_CHANNELS,
 )
 from jax_impl import _checks
@@ -249,16 +245,9 @@ def interleaved_gradient_noise(
 ) -> Float[Array, "h w"]:
     """Interleaved gradient noise at integer pixel coordinates, in [0, 1), shape (height, width).
 
-    Computed in float64 with NumPy at trace time (JAX may run without x64), so it is bit-identical to
-    `diffblur.reference.interleaved_gradient_noise` and to the PyTorch backend, then cast to `dtype`
-    (default: JAX's default float) on `device`.
+    It is `diffblur.reference.interleaved_gradient_noise`, computed in float64 with NumPy at trace
+    time (JAX may run without x64), so it is bit-identical to the PyTorch backend's, then cast to
+    `dtype` (default: JAX's default float) on `device`.
     """
-    height = checks.require_positive_int("height", height)
-    width = checks.require_positive_int("width", width)
-    y = np.arange(height, dtype=np.float64).reshape(-1, 1)
-    x = np.arange(width, dtype=np.float64).reshape(1, -1)
-    inner = IGN_A * x + IGN_B * y
-    inner = inner - np.floor(inner)
-    outer = IGN_C * inner
-    noise = (outer - np.floor(outer)).astype(dtype or jnp.zeros(()).dtype)
+    noise = reference.interleaved_gradient_noise(height, width).astype(dtype or jnp.zeros(()).dtype)
     return jax.device_put(noise, device)

@@ -87,6 +87,7 @@ def _valid_calls(backend):
         "neighbor_max": lambda f: f(ops.tile_max(image(2), 4)),
         "interleaved_gradient_noise": lambda f: f(9, 10),
         "gather_blur": lambda f: f(image(3), image(2), samples=3),
+        "reconstruct": lambda f: f(image(3), image(2), abs(image(1)) + 1.0, samples=3, max_radius=4.0),
     }
 
 

@@ -4,6 +4,7 @@ Mirrors `jax_impl` name by name; conventions in `diffblur.conventions`.
 """
 
 from torch_impl._gather import gather_blur
+from torch_impl._reconstruct import reconstruct
 from torch_impl._primitives import (
     cone,
     cylinder,
@@ -21,6 +22,7 @@ __all__ = [
     "gather_blur",
     "interleaved_gradient_noise",
     "neighbor_max",
+    "reconstruct",
     "safe_length",
     "soft_depth_compare",
     "tile_max",

@@ -39,9 +39,13 @@ def sample(image: Tensor, x: Tensor, y: Tensor, mode: str) -> Tensor:
     column0, row0 = x0.long(), y0.long()
     column1 = (column0 + 1).clamp(max=width - 1)
     row1 = (row0 + 1).clamp(max=height - 1)
-    top = _gather(flat, row0, column0, width) * (1 - fx) + _gather(flat, row0, column1, width) * fx
-    bottom = _gather(flat, row1, column0, width) * (1 - fx) + _gather(flat, row1, column1, width) * fx
-    return top * (1 - fy) + bottom * fy
+    # a + f (b - a), not (1 - f) a + f b: equal neighbours give exactly their value, so equal depths
+    # stay tied (soft_depth_compare has a kink there) whatever the rounding of each framework.
+    top_left = _gather(flat, row0, column0, width)
+    bottom_left = _gather(flat, row1, column0, width)
+    top = top_left + fx * (_gather(flat, row0, column1, width) - top_left)
+    bottom = bottom_left + fx * (_gather(flat, row1, column1, width) - bottom_left)
+    return top + fy * (bottom - top)
 
 
 def pixel_grid(height: int, width: int, like: Tensor) -> tuple[Tensor, Tensor]:

@@ -15,7 +15,10 @@ import pytest
 import torch
 from jax.test_util import check_grads
 
+import torch_impl
 from tests.equivalence.cases import CASES, Case
+
+CASES_BY_NAME = {case.name: case for case in CASES}
 
 DTYPES = ("float32", "float64")
 #: (atol, rtol) for gradients compared across frameworks, per dtype.
@@ -24,6 +27,9 @@ OUTPUT_TOLERANCE_FLOAT64 = (1e-12, 1e-10)
 FD_STEP = 1e-6
 
 case_ids = [case.name for case in CASES]
+#: Cases whose gradients finite differences can check (see Case.on_kinks).
+SMOOTH_CASES = [case for case in CASES if not case.on_kinks]
+smooth_ids = [case.name for case in SMOOTH_CASES]
 
 
 def output_tolerance(case: Case, dtype: str) -> tuple[float, float]:
@@ -117,7 +123,7 @@ def reference_directional_derivative(case: Case, inputs: dict, name: str, direct
 
 
 @pytest.mark.parametrize("backend", ["torch", "jax"])
-@pytest.mark.parametrize("case", CASES, ids=case_ids)
+@pytest.mark.parametrize("case", SMOOTH_CASES, ids=smooth_ids)
 def test_gradient_matches_reference_finite_differences(case, backend):
     """float64 vector-Jacobian products against central differences of the NumPy reference, along
     random directions; the directional derivatives must also be clearly nonzero (useful)."""
@@ -155,7 +161,7 @@ def test_gradient_nonzero_exactly_where_output_moves(case, backend):
         np.testing.assert_allclose(grads[name], per_element, rtol=1e-5, atol=1e-7)
 
 
-@pytest.mark.parametrize("case", CASES, ids=case_ids)
+@pytest.mark.parametrize("case", SMOOTH_CASES, ids=smooth_ids)
 def test_torch_gradcheck(case):
     inputs = case.inputs()
     args = torch_inputs(case, inputs, "float64")
@@ -167,7 +173,7 @@ def test_torch_gradcheck(case):
     assert torch.autograd.gradcheck(fn, [args[n] for n in names], eps=1e-6, atol=1e-6, rtol=1e-5)
 
 
-@pytest.mark.parametrize("case", CASES, ids=case_ids)
+@pytest.mark.parametrize("case", SMOOTH_CASES, ids=smooth_ids)
 def test_jax_check_grads(case):
     args = jax_inputs(case.inputs(), "float64")
     names = list(case.differentiable)
@@ -182,26 +188,68 @@ def test_jax_check_grads(case):
 # ----- compiled against eager ----------------------------------------------------------------------
 
 
-def test_torch_compile_matches_eager():
-    """All cases in one compiled function (one compilation), forward and backward."""
-    prepared = {case.name: (case, case.inputs()) for case in CASES}
+def _compiled_against_eager(cases: list[Case], backend: str) -> None:
+    """Run `cases` in one function (one compilation), forward and backward, compiled and eager."""
+    prepared = {case.name: (case, case.inputs()) for case in cases}
 
     def run_all(tensors):
         return {name: case.torch_op(**tensors[name]) for name, (case, _) in prepared.items()}
 
-    compiled = torch.compile(run_all, fullgraph=True, dynamic=False)
-    for fn_name, fn in (("eager", run_all), ("compiled", compiled)):
+    torch._dynamo.reset()
+    compiled = torch.compile(run_all, backend=backend, fullgraph=True, dynamic=False)
+    results = {}
+    for label, fn in (("eager", run_all), ("compiled", compiled)):
         tensors = {name: torch_inputs(case, inputs, "float32") for name, (case, inputs) in prepared.items()}
         outs = fn(tensors)
-        loss = sum((out * out).sum() for out in outs.values())
-        loss.backward()
-        result = {name: (outs[name].detach().numpy(), {n: tensors[name][n].grad.numpy() for n in case.differentiable}) for name, (case, _) in prepared.items()}
-        if fn_name == "eager":
-            eager = result
+        sum((out * out).sum() for out in outs.values()).backward()
+        results[label] = {
+            name: (outs[name].detach().numpy(), {n: tensors[name][n].grad.numpy() for n in case.differentiable})
+            for name, (case, _) in prepared.items()
+        }
     for name, (case, _) in prepared.items():
-        assert_close(result[name][0], eager[name][0], (1e-6, 1e-6), f"{name} compiled output")
+        compiled_out, compiled_grads = results["compiled"][name]
+        eager_out, eager_grads = results["eager"][name]
+        assert_close(compiled_out, eager_out, (1e-6, 1e-5), f"{name} compiled output")
         for n in case.differentiable:
-            assert_close(result[name][1][n], eager[name][1][n], (1e-5, 1e-5), f"{name} compiled d/d{n}")
+            assert_close(compiled_grads[n], eager_grads[n], (1e-5, 1e-4), f"{name} compiled d/d{n}")
+
+
+PRIMITIVE_CASES = ["soft_depth_compare", "cone", "cylinder", "safe_length", "velocity_from_motion", "tile_max", "neighbor_max"]
+
+
+def _one_case_per_op() -> list[Case]:
+    """One case per op and sampling mode: tracing is slow, and the other options change no
+    control flow that the eager tests do not already cover."""
+    names = PRIMITIVE_CASES + ["gather_blur_bilinear", "gather_blur_nearest", "reconstruct_bilinear", "reconstruct_nearest"]
+    scatter = [case for case in CASES if case.name.startswith("bezier")][:1]
+    return [CASES_BY_NAME[name] for name in names] + scatter
+
+
+def test_torch_compile_captures_every_op_whole():
+    """One case per op and sampling mode, traced by Dynamo into one graph (fullgraph) with
+    AOTAutograd's backward, run without code generation (backend "aot_eager"): no graph breaks,
+    same values."""
+    _compiled_against_eager(_one_case_per_op(), "aot_eager")
+
+
+def test_torch_compile_inductor_matches_eager():
+    """The generated kernels (Inductor, the default backend) for the primitives, the gather and
+    the reconstruction filter. Inductor's C++ build dominates the suite's time (about a minute for
+    the filter on two cores), so it compiles one graph with the smallest filter (S = 3)."""
+    small_filter = Case(
+        "reconstruct_inductor",
+        lambda rng: {
+            "color": rng.random((1, 3, 6, 7)),
+            "velocity": rng.normal(size=(1, 2, 6, 7)) * 2.0,
+            "depth": rng.uniform(1.0, 1.2, size=(1, 1, 6, 7)),
+        },
+        None,
+        lambda **a: torch_impl.reconstruct(**a, samples=3, max_radius=3.0),
+        None,
+        differentiable=("color", "velocity", "depth"),
+    )
+    primitives = [CASES_BY_NAME[name] for name in PRIMITIVE_CASES]
+    _compiled_against_eager([*primitives, CASES_BY_NAME["gather_blur_bilinear"], small_filter], "inductor")
 
 
 @pytest.mark.parametrize("case", CASES, ids=case_ids)
@@ -210,9 +258,10 @@ def test_jax_jit_matches_eager(case):
     cotangent = random_cotangent(case, inputs)
     eager_out, eager_grads = jax_vjp(case, inputs, cotangent, "float32")
     jit_out, jit_grads = jax_vjp(case, inputs, cotangent, "float32", jit=True)
-    assert_close(jit_out, eager_out, (1e-6, 1e-6), "jit output")
+    # XLA fuses multiply-adds under jit, so float32 results move by a few ulps.
+    assert_close(jit_out, eager_out, (1e-6, 1e-5), "jit output")
     for name in case.differentiable:
-        assert_close(jit_grads[name], eager_grads[name], (1e-5, 1e-5), f"jit d/d{name}")
+        assert_close(jit_grads[name], eager_grads[name], GRADIENT_TOLERANCE["float32"], f"jit d/d{name}")
 
 
 # ----- the jitter ---------------------------------------------------------------------------------

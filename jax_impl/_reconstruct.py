@@ -1,0 +1,153 @@
+"""Seed 000's reconstruction filter (Listing 1) as a batched, differentiable JAX op."""
+
+from __future__ import annotations
+
+import math
+
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from diffblur import checks, reference
+from diffblur.conventions import (
+    DEFAULT_MAX_RADIUS,
+    DEFAULT_SAMPLES,
+    DEFAULT_SOFT_Z_EXTENT,
+    DEPTH_CHANNELS,
+    EPSILON,
+    JITTER_MODES,
+    SAMPLING_MODES,
+    TAP_DIRECTIONS,
+    VECTOR_CHANNELS,
+)
+from diffblur.shutters import ShutterWindow, get_shutter
+from diffblur.taps import reconstruct_tap_time, shutter_factor
+from jax_impl import _checks
+from jax_impl._primitives import (
+    _cone,
+    _cylinder,
+    _floor_speed,
+    _safe_length,
+    _soft_depth_compare,
+    neighbor_max,
+    tile_max,
+)
+from jax_impl._sampling import pixel_grid, sample
+
+
+def _jitter_array(jitter: str | Array, color: Array) -> Array:
+    """The per-pixel jitter j in [-0.5, 0.5), (B or 1, 1, H, W)."""
+    batch, _, height, width = color.shape
+    if isinstance(jitter, str):
+        checks.require_choice("jitter", jitter, JITTER_MODES)
+        if jitter == "none":
+            return jnp.zeros((1, 1, height, width), dtype=color.dtype)
+        # Centred in float64, then cast, as the PyTorch backend does, so both give the same bits.
+        noise = reference.interleaved_gradient_noise(height, width) - 0.5
+        return jnp.asarray(noise.astype(color.dtype)).reshape(1, 1, height, width)
+    jitter = _checks.image("jitter", jitter, channels=1)
+    checks.require_same_batch_and_size("color", color.shape, [("jitter", jitter.shape)])
+    _checks.same_dtype("jitter", jitter, "color", color)
+    return jitter
+
+
+def reconstruct(
+    color: Float[Array, "b c h w"],
+    velocity: Float[Array, "b 2 h w"],
+    depth: Float[Array, "b 1 h w"],
+    *,
+    max_radius: float = DEFAULT_MAX_RADIUS,
+    samples: int = DEFAULT_SAMPLES,
+    soft_z_extent: float = DEFAULT_SOFT_Z_EXTENT,
+    jitter: str | Array = "noise",
+    sampling: str = "bilinear",
+    shutter: str | ShutterWindow = "box",
+    early_out: bool | None = None,
+    directions: str = "neighbor",
+) -> Float[Array, "b c h w"]:
+    """Seed 000's reconstruction filter: plausible motion blur from color, velocity and depth.
+
+    TileMax and NeighborMax over tiles of ceil(max_radius) pixels give each pixel X the dominant
+    velocity v_N of its neighbourhood; S - 1 taps Y = X + v_N t, t = mix(-1, 1, (i + j + 1) / (S + 1)),
+    with the whole filter jittered by j, are classified by soft_depth_compare, cone and cylinder
+    (blurry Y in front of X; Y behind blurry X; both blurry) and averaged with X itself, whose
+    weight is 1 / |V[X]|. Each tap also carries the shutter's weight at exposure time -t (1 for
+    the box, which reproduces the paper).
+
+    Args:
+        color: (B, C, H, W) linear intensities, any C.
+        velocity: (B, 2, H, W) half-spread velocity in pixels, usually `velocity_from_motion`'s
+            output (lengths in [0.5, max_radius]); longer vectors are not clamped here, but
+            neighbours farther than one tile are not gathered.
+        depth: (B, 1, H, W) positive depth, larger = farther.
+        max_radius: the largest blur radius k in pixels; tiles are ceil(k) pixels.
+        samples: taps S, an odd integer >= 1.
+        soft_z_extent: depth band of soft_depth_compare, in depth units, > 0.
+        jitter: "noise" (interleaved gradient noise, deterministic), "none", or a (B, 1, H, W)
+            array with values in [-0.5, 0.5].
+        sampling: "bilinear" (differentiable through the tap positions) or "nearest" (the paper).
+        shutter: a window name or `ShutterWindow` (its parameters may be arrays to fit).
+        early_out: return C[X] where |v_N| <= EPSILON + 0.5 px, as the paper does. None (default)
+            turns it on for "nearest" only: on the differentiable path it would zero the gradient
+            of a velocity that starts small.
+        directions: "neighbor" (the paper) or "neighbor_and_own": odd taps along V[X] instead
+            (seed 000 sec. 4.3), for neighbourhoods with more than one motion.
+
+    Returns:
+        (B, C, H, W), color's dtype.
+    """
+    color = _checks.image("color", color)
+    velocity = _checks.image("velocity", velocity, channels=VECTOR_CHANNELS)
+    depth = _checks.image("depth", depth, channels=DEPTH_CHANNELS)
+    checks.require_same_batch_and_size("color", color.shape, [("velocity", velocity.shape), ("depth", depth.shape)])
+    _checks.same_dtype("velocity", velocity, "color", color)
+    _checks.same_dtype("depth", depth, "color", color)
+    tile = math.ceil(checks.require_positive_number("max_radius", max_radius))
+    samples = checks.require_odd_int("samples", samples)
+    soft_z_extent = checks.require_positive_number("soft_z_extent", soft_z_extent)
+    sampling = checks.require_choice("sampling", sampling, SAMPLING_MODES)
+    directions = checks.require_choice("directions", directions, TAP_DIRECTIONS)
+    window = get_shutter(shutter)
+    if early_out is None:
+        early_out = sampling == "nearest"
+    jitter = _jitter_array(jitter, color)
+    return _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, sampling, window, bool(early_out), directions)
+
+
+def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, sampling, window, early_out, directions):
+    _, channels, height, width = color.shape
+    neighbors = neighbor_max(tile_max(velocity, tile))
+    v_n = jnp.repeat(jnp.repeat(neighbors, tile, axis=2), tile, axis=3)[:, :, :height, :width]
+    speed_n = _safe_length(v_n)
+    speed_x = _safe_length(velocity)
+    x, y = pixel_grid(height, width, color.dtype)
+    x, y = x[:, None], y[:, None]
+    buffers = jnp.concatenate([color, velocity, depth], axis=1)  # read C, V and Z at a tap in one gather
+    center = shutter_factor(window, jnp.zeros((), dtype=color.dtype), samples, jnp)
+    weight = center / _floor_speed(speed_x)
+    total = weight * color
+    for k in range(samples):
+        if k == (samples - 1) // 2:
+            continue
+        t = reconstruct_tap_time(k, jitter, samples).astype(color.dtype)
+        own = directions == "neighbor_and_own" and k % 2 == 1
+        direction, speed = (velocity, speed_x) if own else (v_n, speed_n)
+        tap_x = x + direction[:, :1] * t
+        tap_y = y + direction[:, 1:] * t
+        read = sample(buffers, tap_x[:, 0], tap_y[:, 0], sampling)
+        if sampling == "nearest":
+            distance = jnp.hypot(jnp.floor(tap_x + 0.5) - x, jnp.floor(tap_y + 0.5) - y)
+        else:
+            distance = jnp.abs(t) * speed
+        c_y, v_y, z_y = read[:, :channels], read[:, channels : channels + 2], read[:, channels + 2 :]
+        speed_y = _safe_length(v_y)
+        alpha = (
+            _soft_depth_compare(depth, z_y, soft_z_extent) * _cone(distance, speed_y)  # blurry Y in front of any X
+            + _soft_depth_compare(z_y, depth, soft_z_extent) * _cone(distance, speed_x)  # any Y behind blurry X
+            + _cylinder(distance, speed_y) * _cylinder(distance, speed_x) * 2.0  # both blurry
+        ) * shutter_factor(window, -t, samples, jnp)
+        weight = weight + alpha
+        total = total + alpha * c_y
+    out = total / weight
+    if early_out:
+        out = jnp.where(speed_n <= EPSILON + 0.5, color, out)
+    return out.astype(color.dtype)
