@@ -4,6 +4,7 @@ Mirrors `torch_impl` name by name; conventions in `diffblur.conventions`.
 """
 
 from jax_impl._gather import gather_blur
+from jax_impl._module import MotionBlur
 from jax_impl._reconstruct import reconstruct
 from jax_impl._primitives import (
     cone,
@@ -17,6 +18,7 @@ from jax_impl._primitives import (
 )
 
 __all__ = [
+    "MotionBlur",
     "cone",
     "cylinder",
     "gather_blur",

@@ -37,10 +37,15 @@ def test_same_signature_in_both_backends(name):
 
 @pytest.mark.parametrize("name", PUBLIC)
 def test_options_are_keyword_only(name):
-    """Every parameter with a default is an option, and options are keyword-only (dm-pix's rule)."""
+    """Every parameter with a default is an option, and options are keyword-only (dm-pix's rule);
+    a module's first argument, the method it runs, may be positional: MotionBlur("gather")."""
     for backend in (torch_impl, jax_impl):
-        for param in inspect.signature(getattr(backend, name)).parameters.values():
-            if param.default is not inspect.Parameter.empty:
+        params = list(inspect.signature(getattr(backend, name)).parameters.values())
+        if inspect.isclass(getattr(backend, name)):
+            assert params[0].name == "method"
+            params = params[1:]
+        for param in params:
+            if param.default is not inspect.Parameter.empty and param.kind is not inspect.Parameter.VAR_KEYWORD:
                 assert param.kind is inspect.Parameter.KEYWORD_ONLY, f"{backend.__name__}.{name}({param.name}=...)"
 
 
@@ -73,6 +78,12 @@ def test_jax_backend_does_not_import_torch():
     assert "jax" in loaded and "torch" not in loaded
 
 
+def _checked_layer_call(layer, *args):
+    """Call a layer's forward (torch) or __call__ (Equinox) under the annotation checker."""
+    method = layer.forward if hasattr(layer, "forward") else layer.__call__
+    return jaxtyped(typechecker=beartype)(method)(*args)
+
+
 def _valid_calls(backend):
     rng = np.random.default_rng(0)
     image = lambda c: backend.array(rng.normal(size=(2, c, 9, 10)))  # noqa: E731
@@ -87,6 +98,7 @@ def _valid_calls(backend):
         "neighbor_max": lambda f: f(ops.tile_max(image(2), 4)),
         "interleaved_gradient_noise": lambda f: f(9, 10),
         "gather_blur": lambda f: f(image(3), image(2), samples=3),
+        "MotionBlur": lambda f: _checked_layer_call(f("reconstruct", samples=3, max_radius=4.0), image(3), image(2), abs(image(1)) + 1.0),
         "reconstruct": lambda f: f(image(3), image(2), abs(image(1)) + 1.0, samples=3, max_radius=4.0),
     }
 
@@ -97,8 +109,8 @@ def test_shape_annotations_hold_at_run_time(backend):
     calls = _valid_calls(backend)
     assert sorted(calls) == PUBLIC
     for name, call in calls.items():
-        checked = jaxtyped(typechecker=beartype)(getattr(backend.ops, name))
-        call(checked)
+        op = getattr(backend.ops, name)
+        call(op if inspect.isclass(op) else jaxtyped(typechecker=beartype)(op))
 
 
 def test_the_annotation_checker_is_live(backend):
