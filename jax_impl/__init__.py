@@ -5,6 +5,7 @@ Mirrors `torch_impl` name by name; conventions in `diffblur.conventions`.
 
 from jax_impl._gather import gather_blur
 from jax_impl._module import MotionBlur
+from jax_impl._scatter import bezier_scatter
 from jax_impl._reconstruct import reconstruct
 from jax_impl._primitives import (
     cone,
@@ -19,6 +20,7 @@ from jax_impl._primitives import (
 
 __all__ = [
     "MotionBlur",
+    "bezier_scatter",
     "cone",
     "cylinder",
     "gather_blur",

@@ -5,6 +5,7 @@ Mirrors `jax_impl` name by name; conventions in `diffblur.conventions`.
 
 from torch_impl._gather import gather_blur
 from torch_impl._module import MotionBlur
+from torch_impl._scatter import bezier_scatter
 from torch_impl._reconstruct import reconstruct
 from torch_impl._primitives import (
     cone,
@@ -19,6 +20,7 @@ from torch_impl._primitives import (
 
 __all__ = [
     "MotionBlur",
+    "bezier_scatter",
     "cone",
     "cylinder",
     "gather_blur",
