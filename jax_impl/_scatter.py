@@ -242,8 +242,9 @@ def bezier_scatter(
         soft_z_extent: depth units, a number > 0 or a 0-d array (differentiable).
 
     Returns:
-        (B, C, H, W), color's dtype. Splats beyond the border are lost. The backward recomputes each
-        point's splat (activation checkpointing), so its memory is O(pixels), not O(pixels x samples).
+        (B, C, H, W), color's dtype. Splats beyond the border are lost. Points are splatted in
+        chunks of about 2^18 pixel-points; with several chunks the backward recomputes each chunk
+        (activation checkpointing), so its memory is O(pixels), not O(pixels x samples).
 
     >>> import jax.numpy as jnp
     >>> color = jnp.zeros((1, 1, 1, 5)).at[..., 2].set(1.0)

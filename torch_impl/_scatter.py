@@ -227,8 +227,9 @@ def bezier_scatter(
         soft_z_extent: depth units, a number > 0 or a 0-d tensor (differentiable).
 
     Returns:
-        (B, C, H, W), color's dtype. Splats beyond the border are lost. The backward recomputes each
-        point's splat (activation checkpointing), so its memory is O(pixels), not O(pixels x samples).
+        (B, C, H, W), color's dtype. Splats beyond the border are lost. Points are splatted in
+        chunks of about 2^18 pixel-points; with several chunks the backward recomputes each chunk
+        (activation checkpointing), so its memory is O(pixels), not O(pixels x samples).
 
     >>> import torch
     >>> color = torch.zeros(1, 1, 1, 5); color[..., 2] = 1.0
