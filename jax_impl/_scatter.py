@@ -249,8 +249,11 @@ def bezier_scatter(
     >>> import jax.numpy as jnp
     >>> color = jnp.zeros((1, 1, 1, 5)).at[..., 2].set(1.0)
     >>> offset = jnp.zeros((1, 2, 1, 5)).at[:, 0, :, 2].set(1.0)
-    >>> bezier_scatter(color, jnp.ones((1, 1, 1, 5)), -offset, offset, samples=3, shutter="box").round(4).tolist()
-    [[[[0.0, 0.3333, 0.3333, 0.3333, 0.0]]]]
+    >>> depth = jnp.ones((1, 1, 1, 5))
+    >>> bezier_scatter(color, depth, -offset, offset, samples=3, shutter="box", background=jnp.zeros_like(color)).round(4).tolist()
+    [[[[0.0, 0.2222, 0.5556, 0.2222, 0.0]]]]
+    >>> bezier_scatter(color, depth, -offset, offset, samples=3, shutter="box").round(4).tolist()  # fills with its own colour
+    [[[[0.0, 0.2222, 1.0, 0.2222, 0.0]]]]
     """
     color = _checks.image("color", color)
     depth = _checks.image("depth", depth, channels=DEPTH_CHANNELS)

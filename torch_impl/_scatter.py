@@ -234,8 +234,11 @@ def bezier_scatter(
     >>> import torch
     >>> color = torch.zeros(1, 1, 1, 5); color[..., 2] = 1.0
     >>> offset = torch.zeros(1, 2, 1, 5); offset[:, 0, :, 2] = 1.0
-    >>> bezier_scatter(color, torch.ones(1, 1, 1, 5), -offset, offset, samples=3, shutter="box")
-    tensor([[[[0.0000, 0.3333, 0.3333, 0.3333, 0.0000]]]])
+    >>> depth = torch.ones(1, 1, 1, 5)
+    >>> bezier_scatter(color, depth, -offset, offset, samples=3, shutter="box", background=torch.zeros_like(color))
+    tensor([[[[0.0000, 0.2222, 0.5556, 0.2222, 0.0000]]]])
+    >>> bezier_scatter(color, depth, -offset, offset, samples=3, shutter="box")  # fills with its own colour
+    tensor([[[[0.0000, 0.2222, 1.0000, 0.2222, 0.0000]]]])
     """
     color = _checks.image("color", color)
     depth = _checks.image("depth", depth, channels=DEPTH_CHANNELS)
