@@ -138,8 +138,9 @@ def _splat(
     extent: Array,
     moving: Array,
 ) -> Array:
-    """The splats of every curve's points at `times` (K,) with `masses` (K,): (B*H*W, C + 1) sums of
-    omega * [color, 1], one scatter-add for the K points."""
+    """The splats of every curve's points at `times` (K,) with `masses` (K,), one scatter-add for the
+    K points: (B * (H + 2) * (W + 2), C + 1) sums of omega * [color, 1] on the image padded by a ring
+    of one pixel, which catches the corners just outside the image (the caller crops it)."""
     px, py, vx, vy = _point(kind, terms, x, y, times.reshape(-1, 1, 1, 1))
     points, batch, height, width = px.shape
     weight = jnp.where(moving[None], masses.reshape(-1, 1, 1, 1), 0.0)
@@ -147,20 +148,21 @@ def _splat(
         weight = weight * (2.0 * _safe_hypot(vx, vy))
     x0, y0 = jax.lax.stop_gradient(jnp.floor(px)), jax.lax.stop_gradient(jnp.floor(py))
     fx, fy = px - x0, py - y0
+    # Points with a corner in the image have their top-left corner in the padded image.
+    near = (x0 >= -1) & (x0 <= width - 1) & (y0 >= -1) & (y0 <= height - 1)
+    weight = jnp.where(near, weight, 0.0)
+    stride = width + 2
+    first = (jnp.arange(batch, dtype=jnp.int32) * ((height + 2) * stride)).reshape(1, batch, 1, 1)
+    top_left = first + (jnp.where(near, y0, -1.0).astype(jnp.int32) + 1) * stride + jnp.where(near, x0, -1.0).astype(jnp.int32) + 1
     # The four pixels around each point, stacked in front: (4, K, B, H, W).
-    cx = jnp.stack([x0, x0 + 1, x0, x0 + 1])
-    cy = jnp.stack([y0, y0, y0 + 1, y0 + 1])
+    index = jnp.stack([top_left, top_left + 1, top_left + stride, top_left + stride + 1]).reshape(-1)
     bilinear = jnp.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
-    inside = (cx >= 0) & (cx <= width - 1) & (cy >= 0) & (cy <= height - 1)
-    column = jnp.where(inside, cx, 0.0).astype(jnp.int32)
-    row = jnp.where(inside, cy, 0.0).astype(jnp.int32)
-    first = (jnp.arange(batch, dtype=jnp.int32) * (height * width)).reshape(1, 1, batch, 1, 1)
-    index = (first + row * width + column).reshape(-1)
-    destination_depth = depth.reshape(-1)[index].reshape(cx.shape)
+    padded_depth = jnp.pad(depth, ((0, 0), (0, 0), (1, 1), (1, 1)), mode="edge")
+    destination_depth = padded_depth.reshape(-1)[index].reshape(bilinear.shape)
     in_front = _soft_depth_compare(destination_depth, depth[None, None, :, 0], extent)
-    omega = jnp.where(inside, bilinear * in_front * weight[None], 0.0)
+    omega = bilinear * in_front * weight[None]
     values = (omega.reshape(4 * points, -1, 1) * rows[None]).reshape(-1, rows.shape[1])
-    return jnp.zeros_like(rows).at[index].add(values)
+    return jnp.zeros((padded_depth.size, rows.shape[1]), dtype=rows.dtype).at[index].add(values)
 
 
 def _longest(kind: str, terms: tuple, x: Array, y: Array) -> float:
@@ -335,14 +337,22 @@ def _scatter(
     times = jnp.asarray(point_times(samples), dtype=color.dtype)
     chunk = max(1, _CHUNK_PIXEL_POINTS // rows.shape[0])
     splat = functools.partial(_splat, paper, kind)
-    if chunk < samples:  # keep only the inputs for the backward; each chunk is recomputed there
-        splat = jax.checkpoint(splat)
-    accumulated = jnp.zeros_like(rows)
-    for start in range(0, samples, chunk):
-        part = slice(start, start + chunk)
-        accumulated = accumulated + splat(times[part], masses[part], terms, x[None], y[None], rows, depth, extent, moving)
+    fixed = (terms, x[None], y[None], rows, depth, extent, moving)
+    if chunk >= samples:
+        accumulated = splat(times, masses, *fixed)
+    else:
+        # A loop (scan) over the chunks runs them one after the other, so that XLA keeps one chunk's
+        # buffers at a time; each is recomputed in the backward, which keeps only the loop's inputs.
+        # The last chunk is padded with points of mass 0.
+        count = -(-samples // chunk)
+        pad = count * chunk - samples
+        times = jnp.concatenate([times, jnp.zeros(pad, dtype=times.dtype)]).reshape(count, chunk)
+        masses = jnp.concatenate([masses, jnp.zeros(pad, dtype=masses.dtype)]).reshape(count, chunk)
+        step = jax.checkpoint(lambda total, part: (total + splat(*part, *fixed), None))
+        start = jnp.zeros((batch * (height + 2) * (width + 2), channels + 1), dtype=color.dtype)
+        accumulated, _ = jax.lax.scan(step, start, (times, masses))
 
-    accumulated = accumulated.reshape(batch, height, width, channels + 1).transpose(0, 3, 1, 2)
+    accumulated = accumulated.reshape(batch, height + 2, width + 2, channels + 1)[:, 1:-1, 1:-1].transpose(0, 3, 1, 2)
     splatted, alpha = accumulated[:, :channels], accumulated[:, channels:]
     fill = color if background is None else jnp.where(moving[:, None], background, color)
     if paper:

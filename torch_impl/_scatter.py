@@ -4,6 +4,7 @@ along a Bezier curve (or a circular arc) through its positions over the exposure
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from jaxtyping import Float
 from torch import Tensor
 from torch.utils.checkpoint import checkpoint
@@ -120,8 +121,9 @@ def _splat(
     extent: float | Tensor,
     moving: Tensor,
 ) -> Tensor:
-    """The splats of every curve's points at `times` (K,) with `masses` (K,): (B*H*W, C + 1) sums of
-    omega * [color, 1], one scatter-add for the K points."""
+    """The splats of every curve's points at `times` (K,) with `masses` (K,), one scatter-add for the
+    K points: (B * (H + 2) * (W + 2), C + 1) sums of omega * [color, 1] on the image padded by a ring
+    of one pixel, which catches the corners just outside the image (the caller crops it)."""
     px, py, vx, vy = _point(kind, terms, x, y, times.reshape(-1, 1, 1, 1))
     points, batch, height, width = px.shape
     weight = torch.where(moving[None], masses.reshape(-1, 1, 1, 1), 0.0)
@@ -129,20 +131,21 @@ def _splat(
         weight = weight * (2.0 * _safe_hypot(vx, vy))
     x0, y0 = torch.floor(px), torch.floor(py)
     fx, fy = px - x0, py - y0
+    # Points with a corner in the image have their top-left corner in the padded image.
+    near = (x0 >= -1) & (x0 <= width - 1) & (y0 >= -1) & (y0 <= height - 1)
+    weight = torch.where(near, weight, 0.0)
+    stride = width + 2
+    first = (torch.arange(batch, device=px.device) * ((height + 2) * stride)).reshape(1, batch, 1, 1)
+    top_left = first + (torch.where(near, y0, -1.0).long() + 1) * stride + torch.where(near, x0, -1.0).long() + 1
     # The four pixels around each point, stacked in front: (4, K, B, H, W).
-    cx = torch.stack([x0, x0 + 1, x0, x0 + 1])
-    cy = torch.stack([y0, y0, y0 + 1, y0 + 1])
+    index = torch.stack([top_left, top_left + 1, top_left + stride, top_left + stride + 1]).reshape(-1)
     bilinear = torch.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
-    inside = (cx >= 0) & (cx <= width - 1) & (cy >= 0) & (cy <= height - 1)
-    column = torch.where(inside, cx, 0.0).long()
-    row = torch.where(inside, cy, 0.0).long()
-    first = (torch.arange(batch, device=px.device) * (height * width)).reshape(1, 1, batch, 1, 1)
-    index = (first + row * width + column).reshape(-1)
-    destination_depth = depth.reshape(-1)[index].reshape(cx.shape)
+    padded_depth = F.pad(depth, (1, 1, 1, 1), mode="replicate")
+    destination_depth = padded_depth.reshape(-1)[index].reshape(bilinear.shape)
     in_front = _soft_depth_compare(destination_depth, depth[None, None, :, 0], extent)
-    omega = torch.where(inside, bilinear * in_front * weight[None], 0.0)
+    omega = bilinear * in_front * weight[None]
     values = (omega.reshape(4 * points, -1, 1) * rows[None]).reshape(-1, rows.shape[1])
-    return torch.zeros_like(rows).index_add(0, index, values)
+    return torch.zeros(padded_depth.numel(), rows.shape[1], dtype=rows.dtype, device=rows.device).index_add(0, index, values)
 
 
 @torch.compiler.assume_constant_result
@@ -322,7 +325,7 @@ def _scatter(
     chunk = max(1, _CHUNK_PIXEL_POINTS // rows.shape[0])
     # Under torch.compile the compiler chooses what the backward keeps.
     recompute = chunk < samples and torch.is_grad_enabled() and not torch.compiler.is_compiling()
-    accumulated = torch.zeros_like(rows)
+    accumulated = torch.zeros(batch * (height + 2) * (width + 2), channels + 1, dtype=color.dtype, device=color.device)
     for start in range(0, samples, chunk):
         arguments = (paper, kind, times[start : start + chunk], masses[start : start + chunk], terms, x[None], y[None], rows, depth, extent, moving)
         if recompute:  # keep only the inputs for the backward; each chunk is recomputed there
@@ -330,7 +333,7 @@ def _scatter(
         else:
             accumulated = accumulated + _splat(*arguments)
 
-    accumulated = accumulated.reshape(batch, height, width, channels + 1).permute(0, 3, 1, 2)
+    accumulated = accumulated.reshape(batch, height + 2, width + 2, channels + 1)[:, 1:-1, 1:-1].permute(0, 3, 1, 2)
     splatted, alpha = accumulated[:, :channels], accumulated[:, channels:]
     fill = color if background is None else torch.where(moving.unsqueeze(1), background, color)
     if paper:
