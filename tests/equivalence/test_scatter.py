@@ -327,6 +327,22 @@ def test_gradients_at_zero_length_curves_are_finite_and_nonzero_where_needed(bac
     assert d_angle[0, 0, 1, 1] != 0
 
 
+@pytest.mark.parametrize("scale,extent", [(1e6, 0.3), (1e30, 0.3), (1.0, 1e-30)], ids=["far", "farther", "tiny-extent"])
+def test_extremes_are_finite(backend, scale, extent):
+    """Curves that leave the image at once (offsets of 1e6 and 1e30 px: every splat is lost, the image
+    comes back unchanged) and a soft depth band of 1e-30 (a step): finite outputs and gradients."""
+    rng = np.random.default_rng(41)
+    arrays = [rng.random((1, 2, 5, 6)), rng.uniform(1, 2, (1, 1, 5, 6)), rng.normal(size=(1, 2, 5, 6)) * scale, rng.normal(size=(1, 2, 5, 6)) * scale]
+    for normalization in ("coverage", "paper"):
+        fn = lambda *a: backend.ops.bezier_scatter(*a, samples=4, soft_z_extent=extent, normalization=normalization) ** 2  # noqa: E731
+        out = backend.numpy(fn(*(backend.array(a) for a in arrays)))
+        assert np.all(np.isfinite(out))
+        if scale > 1:
+            np.testing.assert_allclose(out, arrays[0] ** 2, rtol=1e-12)
+        for g in backend.grad(fn, *(backend.array(a) for a in arrays)):
+            assert np.all(np.isfinite(g))
+
+
 def test_checkpointed_chunks_match_plain_autodiff(backend, monkeypatch):
     """With a chunk budget of one point (five chunks), each chunk is recomputed in the backward
     (activation checkpointing); outputs and gradients equal those of a single chunk."""
