@@ -48,25 +48,33 @@ def _methods():
     import jax_impl
     import torch_impl
 
-    def torch_call(op, **options):
+    def torch_call(op, with_depth, **options):
         def run(scene):
-            out = op(torch.from_numpy(scene.color), torch.from_numpy(scene.velocity), **options)
-            return out.numpy()
+            inputs = [torch.from_numpy(scene.color), torch.from_numpy(scene.velocity)]
+            if with_depth:
+                inputs.append(torch.from_numpy(scene.depth))
+            with torch.no_grad():
+                return op(*inputs, **options).numpy()
 
         return run
 
-    def jax_call(op, **options):
-        jitted = jax.jit(lambda c, v: op(c, v, **options))
+    def jax_call(op, with_depth, **options):
+        jitted = jax.jit(lambda *inputs: op(*inputs, **options))
 
         def run(scene):
-            return np.asarray(jax.block_until_ready(jitted(jnp.asarray(scene.color), jnp.asarray(scene.velocity))))
+            inputs = [jnp.asarray(scene.color), jnp.asarray(scene.velocity)]
+            if with_depth:
+                inputs.append(jnp.asarray(scene.depth))
+            return np.asarray(jax.block_until_ready(jitted(*inputs)))
 
         return run
 
-    return [
-        ("gather, S=15, bilinear", torch_call(torch_impl.gather_blur, samples=15), jax_call(jax_impl.gather_blur, samples=15)),
-        ("gather, S=15, nearest", torch_call(torch_impl.gather_blur, samples=15, sampling="nearest"), jax_call(jax_impl.gather_blur, samples=15, sampling="nearest")),
+    methods = [
+        ("gather, S=15", torch_impl.gather_blur, jax_impl.gather_blur, False, dict(samples=15)),
+        ("reconstruct, S=15, nearest", torch_impl.reconstruct, jax_impl.reconstruct, True, dict(samples=15, sampling="nearest")),
+        ("reconstruct, S=15, bilinear", torch_impl.reconstruct, jax_impl.reconstruct, True, dict(samples=15)),
     ]
+    return [(name, torch_call(t, depth, **o), jax_call(j, depth, **o)) for name, t, j, depth, o in methods]
 
 
 def run_demo(out_dir: str | os.PathLike, *, scene_name: str = "crossing", size: int = 160) -> tuple[str, list[DemoResult]]:
@@ -134,7 +142,7 @@ def _save_picture(path: str, scene, results: list[DemoResult]) -> None:
 
 
 def format_table(results: list[DemoResult]) -> str:
-    lines = [f"{'method':<26} {'backend':<7} {'PSNR dB':>8} {'SSIM':>7} {'ms':>8}"]
+    lines = [f"{'method':<28} {'backend':<7} {'PSNR dB':>8} {'SSIM':>7} {'ms':>8}"]
     for r in results:
-        lines.append(f"{r.method:<26} {r.backend:<7} {r.psnr:>8.2f} {r.ssim:>7.4f} {r.milliseconds:>8.1f}")
+        lines.append(f"{r.method:<28} {r.backend:<7} {r.psnr:>8.2f} {r.ssim:>7.4f} {r.milliseconds:>8.1f}")
     return "\n".join(lines)

@@ -263,6 +263,7 @@ def reconstruct(
     shutter: str | ShutterWindow = "box",
     early_out: bool | None = None,
     directions: str = "neighbor",
+    min_radius: float = DEFAULT_MIN_RADIUS,
 ) -> np.ndarray:
     """Seed 000 Listing 1, the reconstruction filter, pixel by pixel.
 
@@ -277,6 +278,7 @@ def reconstruct(
     centres, as in the paper; with "bilinear" C, V and Z are read between pixels and the distance
     is |t| |v_N|. directions="neighbor_and_own" takes the odd taps along V[X] instead (sec. 4.3).
     jitter: "noise" (interleaved gradient noise - 0.5), "none", or an array (B, 1, H, W) in [-0.5, 0.5].
+    Speeds |V| below min_radius count as min_radius (the paper's buffer is clamped to >= 0.5 px).
     """
     checks.require_choice("sampling", sampling, SAMPLING_MODES)
     checks.require_choice("directions", directions, TAP_DIRECTIONS)
@@ -305,9 +307,9 @@ def reconstruct(
                     out[b, :, i, j] = color[b, :, i, j]
                     continue
                 v_x = velocity[b, :, i, j]
-                speed_x = math.hypot(*v_x)
+                speed_x = max(math.hypot(*v_x), min_radius)
                 z_x = depth[b, 0, i, j]
-                weight = center_factor / max(speed_x, EPSILON)
+                weight = center_factor / speed_x
                 total = weight * color[b, :, i, j]
                 for k in range(samples):
                     if k == (samples - 1) // 2:
@@ -321,7 +323,7 @@ def reconstruct(
                         distance = abs(t) * math.hypot(*direction)
                     read = sample(buffers[b], x, y)
                     c_y, v_y, z_y = read[:channels], read[channels : channels + 2], read[channels + 2]
-                    speed_y = math.hypot(*v_y)
+                    speed_y = max(math.hypot(*v_y), min_radius)
                     front = soft_depth_compare(z_x, z_y, soft_z_extent)  # Y in front of X
                     back = soft_depth_compare(z_y, z_x, soft_z_extent)  # Y behind X
                     speeds_y, speeds_x, distances = np.array(speed_y), np.array(speed_x), np.array(distance)

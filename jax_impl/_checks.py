@@ -57,6 +57,18 @@ def positive_values(name: str, x: jax.Array) -> jax.Array:
     return x
 
 
+def finite_values(name: str, x: jax.Array) -> jax.Array:
+    """Raise if any element is NaN or infinite: ValueError now, or EqxRuntimeError under jit.
+
+    Returns `x`, which under jit must be used in place of the input to keep the check alive."""
+    bad = jnp.logical_not(jnp.all(jnp.isfinite(x)))
+    if isinstance(x, jax.core.Tracer):
+        return eqx.error_if(x, bad, checks.nonfinite_message(name))
+    if bool(bad):
+        raise ValueError(checks.nonfinite_message(name))
+    return x
+
+
 def positive_scalar(name: str, value: object, like: jax.Array) -> float | jax.Array:
     """A Python number > 0, or a 0-d array / array of `like`'s shape with values > 0."""
     if isinstance(value, (jax.Array, np.ndarray)):

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import math
 
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from diffblur import checks, reference
 from diffblur.conventions import (
     DEFAULT_MAX_RADIUS,
+    DEFAULT_MIN_RADIUS,
     DEFAULT_SAMPLES,
     DEFAULT_SOFT_Z_EXTENT,
     DEPTH_CHANNELS,
@@ -25,13 +27,16 @@ from jax_impl import _checks
 from jax_impl._primitives import (
     _cone,
     _cylinder,
-    _floor_speed,
     _safe_length,
     _soft_depth_compare,
     neighbor_max,
     tile_max,
 )
 from jax_impl._sampling import pixel_grid, sample
+
+
+def _at_least(speed, floor: float):
+    return jnp.where(speed < floor, floor, speed).astype(speed.dtype)
 
 
 def _jitter_array(jitter: str | Array, color: Array) -> Array:
@@ -63,6 +68,7 @@ def reconstruct(
     shutter: str | ShutterWindow = "box",
     early_out: bool | None = None,
     directions: str = "neighbor",
+    min_radius: float = DEFAULT_MIN_RADIUS,
 ) -> Float[Array, "b c h w"]:
     """Seed 000's reconstruction filter: plausible motion blur from color, velocity and depth.
 
@@ -91,6 +97,9 @@ def reconstruct(
             of a velocity that starts small.
         directions: "neighbor" (the paper) or "neighbor_and_own": odd taps along V[X] instead
             (seed 000 sec. 4.3), for neighbourhoods with more than one motion.
+        min_radius: speeds |V| below it count as min_radius px (seed 000 sec. 2.2 clamps the
+            velocity buffer to at least 0.5 px), so a still pixel has centre weight 1 / min_radius
+            rather than an infinite one that would keep blurry foregrounds from covering it.
 
     Returns:
         (B, C, H, W), color's dtype.
@@ -101,36 +110,46 @@ def reconstruct(
     checks.require_same_batch_and_size("color", color.shape, [("velocity", velocity.shape), ("depth", depth.shape)])
     _checks.same_dtype("velocity", velocity, "color", color)
     _checks.same_dtype("depth", depth, "color", color)
+    velocity = _checks.finite_values("velocity", velocity)
+    depth = _checks.finite_values("depth", _checks.positive_values("depth", depth))
     tile = math.ceil(checks.require_positive_number("max_radius", max_radius))
     samples = checks.require_odd_int("samples", samples)
     soft_z_extent = checks.require_positive_number("soft_z_extent", soft_z_extent)
     sampling = checks.require_choice("sampling", sampling, SAMPLING_MODES)
     directions = checks.require_choice("directions", directions, TAP_DIRECTIONS)
+    min_radius = checks.require_positive_number("min_radius", min_radius)
     window = get_shutter(shutter)
     if early_out is None:
         early_out = sampling == "nearest"
     jitter = _jitter_array(jitter, color)
-    return _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, sampling, window, bool(early_out), directions)
+    return _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, sampling, window, bool(early_out), directions, min_radius)
 
 
-def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, sampling, window, early_out, directions):
+def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, sampling, window, early_out, directions, min_radius):
     _, channels, height, width = color.shape
     neighbors = neighbor_max(tile_max(velocity, tile))
     v_n = jnp.repeat(jnp.repeat(neighbors, tile, axis=2), tile, axis=3)[:, :, :height, :width]
     speed_n = _safe_length(v_n)
-    speed_x = _safe_length(velocity)
+    length_x = _safe_length(velocity)  # the tap offset along V[X] is |t| |V[X]|
+    speed_x = _at_least(length_x, min_radius)  # the classifiers' speed, floored as the paper's buffer
     x, y = pixel_grid(height, width, color.dtype)
     x, y = x[:, None], y[:, None]
     buffers = jnp.concatenate([color, velocity, depth], axis=1)  # read C, V and Z at a tap in one gather
-    center = shutter_factor(window, jnp.zeros((), dtype=color.dtype), samples, jnp)
-    weight = center / _floor_speed(speed_x)
-    total = weight * color
-    for k in range(samples):
-        if k == (samples - 1) // 2:
-            continue
-        t = reconstruct_tap_time(k, jitter, samples).astype(color.dtype)
-        own = directions == "neighbor_and_own" and k % 2 == 1
-        direction, speed = (velocity, speed_x) if own else (v_n, speed_n)
+
+    taps = jnp.asarray([k for k in range(samples) if k != (samples - 1) // 2], dtype=jnp.int32)
+
+    # Recompute each tap in the backward pass instead of keeping its full-resolution intermediates,
+    # and loop with scan (not unrolled): the backward's memory then stays O(pixels), not
+    # O(pixels x taps). The accumulation is a sum, so its VJP needs none of the carries.
+    @jax.checkpoint
+    def tap(k, buffers, depth, v_n, speed_n, velocity, length_x, speed_x, jitter):
+        """Tap k's weight alpha and alpha * C[Y], (B, 1, H, W) and (B, C, H, W)."""
+        t = reconstruct_tap_time(k.astype(color.dtype), jitter, samples).astype(color.dtype)
+        if directions == "neighbor_and_own":
+            own = k % 2 == 1
+            direction, speed = jnp.where(own, velocity, v_n), jnp.where(own, length_x, speed_n)
+        else:
+            direction, speed = v_n, speed_n
         tap_x = x + direction[:, :1] * t
         tap_y = y + direction[:, 1:] * t
         read = sample(buffers, tap_x[:, 0], tap_y[:, 0], sampling)
@@ -139,14 +158,24 @@ def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, s
         else:
             distance = jnp.abs(t) * speed
         c_y, v_y, z_y = read[:, :channels], read[:, channels : channels + 2], read[:, channels + 2 :]
-        speed_y = _safe_length(v_y)
+        speed_y = _at_least(_safe_length(v_y), min_radius)
         alpha = (
             _soft_depth_compare(depth, z_y, soft_z_extent) * _cone(distance, speed_y)  # blurry Y in front of any X
             + _soft_depth_compare(z_y, depth, soft_z_extent) * _cone(distance, speed_x)  # any Y behind blurry X
             + _cylinder(distance, speed_y) * _cylinder(distance, speed_x) * 2.0  # both blurry
         ) * shutter_factor(window, -t, samples, jnp)
-        weight = weight + alpha
-        total = total + alpha * c_y
+        return alpha.astype(color.dtype), (alpha * c_y).astype(color.dtype)
+
+    def accumulate(carry, k):
+        weight, total = carry
+        alpha, contribution = tap(k, buffers, depth, v_n, speed_n, velocity, length_x, speed_x, jitter)
+        return (weight + alpha, total + contribution), None
+
+    center = shutter_factor(window, jnp.zeros((), dtype=color.dtype), samples, jnp)
+    weight = (center / speed_x).astype(color.dtype)
+    total = weight * color
+    if samples > 1:
+        (weight, total), _ = jax.lax.scan(accumulate, (weight, total), taps)
     out = total / weight
     if early_out:
         out = jnp.where(speed_n <= EPSILON + 0.5, color, out)

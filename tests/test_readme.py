@@ -46,8 +46,8 @@ def test_demo_writes_a_picture_and_a_table(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path), "--size", "48"]) == 0
     printed = capsys.readouterr().out
     assert (tmp_path / "demo.png").stat().st_size > 10_000
-    rows = [line for line in printed.splitlines() if line.startswith("gather")]
-    assert len(rows) >= 4
+    rows = [line for line in printed.splitlines() if line.startswith(("gather", "reconstruct"))]
+    assert len(rows) == 6
     for row in rows:
         psnr = float(row.split()[-3])
         assert 15 < psnr < 60

@@ -47,6 +47,12 @@ def positive_values(name: str, x: torch.Tensor) -> None:
         raise ValueError(checks.nonpositive_message(name))
 
 
+def finite_values(name: str, x: torch.Tensor) -> None:
+    """Raise ValueError if any element is NaN or infinite (eager only)."""
+    if not torch.compiler.is_compiling() and not bool(torch.isfinite(x).all()):
+        raise ValueError(checks.nonfinite_message(name))
+
+
 def positive_scalar(name: str, value: object, like: torch.Tensor) -> float | torch.Tensor:
     """A Python number > 0, or a 0-d tensor / tensor of `like`'s shape with values > 0.
 

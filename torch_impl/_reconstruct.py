@@ -7,10 +7,12 @@ import math
 import torch
 from jaxtyping import Float
 from torch import Tensor
+from torch.utils.checkpoint import checkpoint
 
 from diffblur import checks
 from diffblur.conventions import (
     DEFAULT_MAX_RADIUS,
+    DEFAULT_MIN_RADIUS,
     DEFAULT_SAMPLES,
     DEFAULT_SOFT_Z_EXTENT,
     DEPTH_CHANNELS,
@@ -26,7 +28,6 @@ from torch_impl import _checks
 from torch_impl._primitives import (
     _cone,
     _cylinder,
-    _floor_speed,
     _safe_length,
     _soft_depth_compare,
     interleaved_gradient_noise,
@@ -34,6 +35,10 @@ from torch_impl._primitives import (
     tile_max,
 )
 from torch_impl._sampling import pixel_grid, sample
+
+
+def _at_least(speed, floor: float):
+    return torch.where(speed < floor, floor, speed)
 
 
 def _jitter_tensor(jitter: str | Tensor, color: Tensor) -> Tensor:
@@ -63,6 +68,7 @@ def reconstruct(
     shutter: str | ShutterWindow = "box",
     early_out: bool | None = None,
     directions: str = "neighbor",
+    min_radius: float = DEFAULT_MIN_RADIUS,
 ) -> Float[Tensor, "b c h w"]:
     """Seed 000's reconstruction filter: plausible motion blur from color, velocity and depth.
 
@@ -91,6 +97,9 @@ def reconstruct(
             of a velocity that starts small.
         directions: "neighbor" (the paper) or "neighbor_and_own": odd taps along V[X] instead
             (seed 000 sec. 4.3), for neighbourhoods with more than one motion.
+        min_radius: speeds |V| below it count as min_radius px (seed 000 sec. 2.2 clamps the
+            velocity buffer to at least 0.5 px), so a still pixel has centre weight 1 / min_radius
+            rather than an infinite one that would keep blurry foregrounds from covering it.
 
     Returns:
         (B, C, H, W), color's dtype and device.
@@ -101,36 +110,36 @@ def reconstruct(
     checks.require_same_batch_and_size("color", color.shape, [("velocity", velocity.shape), ("depth", depth.shape)])
     _checks.same_dtype_and_device("velocity", velocity, "color", color)
     _checks.same_dtype_and_device("depth", depth, "color", color)
+    _checks.finite_values("velocity", velocity)
+    _checks.positive_values("depth", depth)
+    _checks.finite_values("depth", depth)
     tile = math.ceil(checks.require_positive_number("max_radius", max_radius))
     samples = checks.require_odd_int("samples", samples)
     soft_z_extent = checks.require_positive_number("soft_z_extent", soft_z_extent)
     sampling = checks.require_choice("sampling", sampling, SAMPLING_MODES)
     directions = checks.require_choice("directions", directions, TAP_DIRECTIONS)
+    min_radius = checks.require_positive_number("min_radius", min_radius)
     window = get_shutter(shutter)
     if early_out is None:
         early_out = sampling == "nearest"
     jitter = _jitter_tensor(jitter, color)
-    return _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, sampling, window, bool(early_out), directions)
+    return _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, sampling, window, bool(early_out), directions, min_radius)
 
 
-def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, sampling, window, early_out, directions):
+def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, sampling, window, early_out, directions, min_radius):
     _, channels, height, width = color.shape
     neighbors = neighbor_max(tile_max(velocity, tile))
     v_n = neighbors.repeat_interleave(tile, dim=2).repeat_interleave(tile, dim=3)[:, :, :height, :width]
     speed_n = _safe_length(v_n)
-    speed_x = _safe_length(velocity)
+    length_x = _safe_length(velocity)  # the tap offset along V[X] is |t| |V[X]|
+    speed_x = _at_least(length_x, min_radius)  # the classifiers' speed, floored as the paper's buffer
     x, y = pixel_grid(height, width, color)
     x, y = x.unsqueeze(1), y.unsqueeze(1)
     buffers = torch.cat([color, velocity, depth], dim=1)  # read C, V and Z at a tap in one gather
-    center = shutter_factor(window, torch.zeros((), dtype=color.dtype, device=color.device), samples, torch)
-    weight = center / _floor_speed(speed_x)
-    total = weight * color
-    for k in range(samples):
-        if k == (samples - 1) // 2:
-            continue
+
+    def tap(k: int, buffers, depth, direction, speed, speed_x, jitter):
+        """Tap k's weight alpha and alpha * C[Y], (B, 1, H, W) and (B, C, H, W)."""
         t = reconstruct_tap_time(k, jitter, samples)
-        own = directions == "neighbor_and_own" and k % 2 == 1
-        direction, speed = (velocity, speed_x) if own else (v_n, speed_n)
         tap_x = x + direction[:, :1] * t
         tap_y = y + direction[:, 1:] * t
         read = sample(buffers, tap_x[:, 0], tap_y[:, 0], sampling)
@@ -139,14 +148,32 @@ def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, s
         else:
             distance = torch.abs(t) * speed
         c_y, v_y, z_y = read[:, :channels], read[:, channels : channels + 2], read[:, channels + 2 :]
-        speed_y = _safe_length(v_y)
+        speed_y = _at_least(_safe_length(v_y), min_radius)
         alpha = (
             _soft_depth_compare(depth, z_y, soft_z_extent) * _cone(distance, speed_y)  # blurry Y in front of any X
             + _soft_depth_compare(z_y, depth, soft_z_extent) * _cone(distance, speed_x)  # any Y behind blurry X
             + _cylinder(distance, speed_y) * _cylinder(distance, speed_x) * 2.0  # both blurry
         ) * shutter_factor(window, -t, samples, torch)
+        return alpha, alpha * c_y
+
+    # Recompute each tap in the backward pass instead of keeping its full-resolution intermediates:
+    # the backward's memory then stays O(pixels), not O(pixels x taps).
+    recompute = torch.is_grad_enabled() and any(a.requires_grad for a in (color, velocity, depth))
+    center = shutter_factor(window, torch.zeros((), dtype=color.dtype, device=color.device), samples, torch)
+    weight = center / speed_x
+    total = weight * color
+    for k in range(samples):
+        if k == (samples - 1) // 2:
+            continue
+        own = directions == "neighbor_and_own" and k % 2 == 1
+        direction, speed = (velocity, length_x) if own else (v_n, speed_n)
+        args = (buffers, depth, direction, speed, speed_x, jitter)
+        if recompute:
+            alpha, contribution = checkpoint(tap, k, *args, use_reentrant=False)
+        else:
+            alpha, contribution = tap(k, *args)
         weight = weight + alpha
-        total = total + alpha * c_y
+        total = total + contribution
     out = total / weight
     if early_out:
         out = torch.where(speed_n <= EPSILON + 0.5, color, out)

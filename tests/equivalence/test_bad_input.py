@@ -10,7 +10,32 @@ def field(shape, dtype="float64", backend=None):
     return backend.array(np.ones(shape), dtype)
 
 
+def reconstruct_call(b, *, color=(1, 3, 6, 7), velocity=(1, 2, 6, 7), depth=(1, 1, 6, 7), velocity_fill=1.0, depth_fill=1.0, **options):
+    return lambda o: o.reconstruct(
+        b.array(np.ones(color)), b.array(np.full(velocity, velocity_fill)), b.array(np.full(depth, depth_fill)), **options
+    )
+
+
 BAD_CALLS = [
+    ("reconstruct color rank", lambda o, b: reconstruct_call(b, color=(3, 6, 7))(o), ValueError, r"color must be a 4-d"),
+    ("reconstruct depth channels", lambda o, b: reconstruct_call(b, depth=(1, 2, 6, 7))(o), ValueError, r"depth must have 1 channel"),
+    ("reconstruct size mismatch", lambda o, b: reconstruct_call(b, velocity=(1, 2, 6, 8))(o), ValueError, r"velocity must match color in batch and size \(B=1, H=6, W=7\), got shape \(1, 2, 6, 8\)"),
+    ("reconstruct batch mismatch", lambda o, b: reconstruct_call(b, depth=(2, 1, 6, 7))(o), ValueError, r"depth must match color in batch and size"),
+    ("reconstruct even samples", lambda o, b: reconstruct_call(b, samples=4)(o), ValueError, r"samples must be an odd integer >= 1, got 4"),
+    ("reconstruct zero samples", lambda o, b: reconstruct_call(b, samples=0)(o), ValueError, r"samples must be an odd integer >= 1, got 0"),
+    ("reconstruct max_radius", lambda o, b: reconstruct_call(b, max_radius=0)(o), ValueError, r"max_radius must be > 0, got 0"),
+    ("reconstruct extent", lambda o, b: reconstruct_call(b, soft_z_extent=-0.1)(o), ValueError, r"soft_z_extent must be > 0, got -0.1"),
+    ("reconstruct sampling", lambda o, b: reconstruct_call(b, sampling="cubic")(o), ValueError, r"sampling must be one of 'bilinear', 'nearest'; got 'cubic'"),
+    ("reconstruct jitter", lambda o, b: reconstruct_call(b, jitter="random")(o), ValueError, r"jitter must be one of 'noise', 'none'; got 'random'"),
+    ("reconstruct directions", lambda o, b: reconstruct_call(b, directions="own")(o), ValueError, r"directions must be one of"),
+    ("reconstruct shutter", lambda o, b: reconstruct_call(b, shutter="rolling")(o), ValueError, r"shutter must be one of"),
+    ("reconstruct NaN velocity", lambda o, b: reconstruct_call(b, velocity_fill=np.nan)(o), ValueError, r"velocity must be finite everywhere"),
+    ("reconstruct inf depth", lambda o, b: reconstruct_call(b, depth_fill=np.inf)(o), ValueError, r"depth must be finite everywhere"),
+    ("reconstruct NaN depth", lambda o, b: reconstruct_call(b, depth_fill=np.nan)(o), ValueError, r"depth must be > 0 everywhere"),
+    ("reconstruct zero depth", lambda o, b: reconstruct_call(b, depth_fill=0.0)(o), ValueError, r"depth must be > 0 everywhere"),
+    ("gather even samples", lambda o, b: o.gather_blur(field((1, 3, 4, 4), backend=b), field((1, 2, 4, 4), backend=b), samples=2), ValueError, r"samples must be an odd integer >= 1, got 2"),
+    ("gather velocity size", lambda o, b: o.gather_blur(field((1, 3, 4, 4), backend=b), field((1, 2, 4, 5), backend=b)), ValueError, r"velocity must match color"),
+    ("gather dtype mismatch", lambda o, b: o.gather_blur(field((1, 3, 4, 4), "float32", b), field((1, 2, 4, 4), "float64", b)), TypeError, r"velocity must have the dtype of color"),
     # (id, call(ops, backend), exception, message pattern)
     ("velocity rank 3", lambda o, b: o.tile_max(field((2, 7, 11), backend=b), 4), ValueError, r"velocity must be a 4-d \(B, 2, H, W\) array, got shape \(2, 7, 11\)"),
     ("velocity 3 channels", lambda o, b: o.tile_max(field((1, 3, 7, 11), backend=b), 4), ValueError, r"velocity must have 2 channel\(s\).*got shape \(1, 3, 7, 11\)"),
