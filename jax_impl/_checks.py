@@ -50,7 +50,8 @@ def positive_values(name: str, x: jax.Array) -> jax.Array:
 
     Returns `x`, which under jit must be used in place of the input to keep the check alive."""
     bad = jnp.logical_not(jnp.all(x > 0))
-    if isinstance(x, jax.core.Tracer):
+    # Inside jit even a concrete x gives a traced `bad`: test that, not x.
+    if isinstance(bad, jax.core.Tracer):
         return eqx.error_if(x, bad, checks.nonpositive_message(name))
     if bool(bad):
         raise ValueError(checks.nonpositive_message(name))
@@ -62,7 +63,8 @@ def finite_values(name: str, x: jax.Array) -> jax.Array:
 
     Returns `x`, which under jit must be used in place of the input to keep the check alive."""
     bad = jnp.logical_not(jnp.all(jnp.isfinite(x)))
-    if isinstance(x, jax.core.Tracer):
+    # Inside jit even a concrete x gives a traced `bad`: test that, not x.
+    if isinstance(bad, jax.core.Tracer):
         return eqx.error_if(x, bad, checks.nonfinite_message(name))
     if bool(bad):
         raise ValueError(checks.nonfinite_message(name))
