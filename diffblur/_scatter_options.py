@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from diffblur import checks
+from diffblur import checks, conventions
 from diffblur.shutters import ShutterWindow
 from diffblur.taps import stratum_weights
 
@@ -68,8 +68,8 @@ DEFAULT_SHUTTER = "gaussian"
 #: Cap of the automatic point count (one point per pixel of the longest curve).
 DEFAULT_MAX_SAMPLES = 32
 #: Depth units: a splat counts fully where its source is in front of the destination or level with
-#: it, fading to nothing `soft_z_extent` behind (seed 000 uses 1 mm to 10 cm).
-DEFAULT_SOFT_Z_EXTENT = 0.1
+#: it, fading to nothing `soft_z_extent` behind; the same default as reconstruct's.
+DEFAULT_SOFT_Z_EXTENT = conventions.DEFAULT_SOFT_Z_EXTENT
 #: Seed 003's w_b (sec. 4), used by normalization="paper".
 DEFAULT_BACKGROUND_WEIGHT = 5.0
 #: The instant of the cubic's extra position (seed 003 sec. 5.1 names t = -1/2 or t = -2).
