@@ -28,11 +28,10 @@ from diffblur.conventions import (
     IGN_C,
     JITTER_MODES,
     SAMPLING_MODES,
-    TAP_DIRECTIONS,
     VECTOR_CHANNELS,
 )
 from diffblur.shutters import ShutterWindow, get_shutter
-from diffblur.taps import gather_tap_times, reconstruct_tap_time, shutter_factor, stratum_weights
+from diffblur.taps import gather_tap_times, reconstruct_options, reconstruct_tap_time, shutter_factor, stratum_weights
 
 __all__ = [
     "clamp01",
@@ -280,13 +279,17 @@ def reconstruct(
     jitter: "noise" (interleaved gradient noise - 0.5), "none", or an array (B, 1, H, W) in [-0.5, 0.5].
     Speeds |V| below min_radius count as min_radius (the paper's buffer is clamped to >= 0.5 px).
     """
-    checks.require_choice("sampling", sampling, SAMPLING_MODES)
-    checks.require_choice("directions", directions, TAP_DIRECTIONS)
-    samples = checks.require_odd_int("samples", samples)
-    tile = math.ceil(checks.require_positive_number("max_radius", max_radius))
-    if early_out is None:
-        early_out = sampling == "nearest"
-    window = get_shutter(shutter)
+    o = reconstruct_options(
+        max_radius=max_radius,
+        samples=samples,
+        soft_z_extent=soft_z_extent,
+        sampling=sampling,
+        shutter=shutter,
+        early_out=early_out,
+        directions=directions,
+        min_radius=min_radius,
+    )
+    samples, tile, window, early_out, sampling = o.samples, o.tile, o.window, o.early_out, o.sampling
     batch, _, height, width = color.shape
     if isinstance(jitter, str):
         checks.require_choice("jitter", jitter, JITTER_MODES)

@@ -6,12 +6,22 @@ shutter's parameters may be tensors being fitted.
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
 from typing import Any
 
 from diffblur import checks
-from diffblur.shutters import ShutterWindow
+from diffblur.conventions import SAMPLING_MODES, TAP_DIRECTIONS
+from diffblur.shutters import ShutterWindow, get_shutter
 
-__all__ = ["gather_tap_times", "reconstruct_tap_time", "shutter_factor", "stratum_weights"]
+__all__ = [
+    "ReconstructOptions",
+    "gather_tap_times",
+    "reconstruct_options",
+    "reconstruct_tap_time",
+    "shutter_factor",
+    "stratum_weights",
+]
 
 
 def gather_tap_times(samples: int) -> tuple[float, ...]:
@@ -45,3 +55,35 @@ def shutter_factor(window: ShutterWindow, tau: Any, samples: int, xp: Any) -> An
     tap's stratum (half-width 1 / (S + 1)) times 2, which is exactly 1 for the box (the paper)."""
     half_width = 1.0 / (samples + 1.0)
     return stratum_weights(window, tau, half_width, xp) / half_width
+
+
+@dataclass(frozen=True)
+class ReconstructOptions:
+    """reconstruct's options, checked and resolved (tile from max_radius, the window, early_out)."""
+
+    tile: int
+    samples: int
+    soft_z_extent: float
+    sampling: str
+    window: ShutterWindow
+    early_out: bool
+    directions: str
+    min_radius: float
+
+
+def reconstruct_options(
+    *, max_radius: float, samples: int, soft_z_extent: float, sampling: str, shutter: Any, early_out: bool | None, directions: str, min_radius: float
+) -> ReconstructOptions:
+    """Check reconstruct's options once for every backend and the reference. early_out=None
+    means on for "nearest" (the paper) and off for "bilinear" (the differentiable path)."""
+    sampling = checks.require_choice("sampling", sampling, SAMPLING_MODES)
+    return ReconstructOptions(
+        tile=math.ceil(checks.require_positive_number("max_radius", max_radius)),
+        samples=checks.require_odd_int("samples", samples),
+        soft_z_extent=checks.require_positive_number("soft_z_extent", soft_z_extent),
+        sampling=sampling,
+        window=get_shutter(shutter),
+        early_out=sampling == "nearest" if early_out is None else bool(early_out),
+        directions=checks.require_choice("directions", directions, TAP_DIRECTIONS),
+        min_radius=checks.require_positive_number("min_radius", min_radius),
+    )

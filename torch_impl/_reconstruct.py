@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 
 import torch
 from jaxtyping import Float
@@ -18,12 +17,10 @@ from diffblur.conventions import (
     DEPTH_CHANNELS,
     EPSILON,
     JITTER_MODES,
-    SAMPLING_MODES,
-    TAP_DIRECTIONS,
     VECTOR_CHANNELS,
 )
-from diffblur.shutters import ShutterWindow, get_shutter
-from diffblur.taps import reconstruct_tap_time, shutter_factor
+from diffblur.shutters import ShutterWindow
+from diffblur.taps import reconstruct_options, reconstruct_tap_time, shutter_factor
 from torch_impl import _checks
 from torch_impl._primitives import (
     _cone,
@@ -113,17 +110,18 @@ def reconstruct(
     _checks.finite_values("velocity", velocity)
     _checks.positive_values("depth", depth)
     _checks.finite_values("depth", depth)
-    tile = math.ceil(checks.require_positive_number("max_radius", max_radius))
-    samples = checks.require_odd_int("samples", samples)
-    soft_z_extent = checks.require_positive_number("soft_z_extent", soft_z_extent)
-    sampling = checks.require_choice("sampling", sampling, SAMPLING_MODES)
-    directions = checks.require_choice("directions", directions, TAP_DIRECTIONS)
-    min_radius = checks.require_positive_number("min_radius", min_radius)
-    window = get_shutter(shutter)
-    if early_out is None:
-        early_out = sampling == "nearest"
+    o = reconstruct_options(
+        max_radius=max_radius,
+        samples=samples,
+        soft_z_extent=soft_z_extent,
+        sampling=sampling,
+        shutter=shutter,
+        early_out=early_out,
+        directions=directions,
+        min_radius=min_radius,
+    )
     jitter = _jitter_tensor(jitter, color)
-    return _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, sampling, window, bool(early_out), directions, min_radius)
+    return _reconstruct(color, velocity, depth, o.tile, o.samples, o.soft_z_extent, jitter, o.sampling, o.window, o.early_out, o.directions, o.min_radius)
 
 
 def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, sampling, window, early_out, directions, min_radius):
