@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+import numpy as np
+
 
 def _demo(args: argparse.Namespace) -> int:
     from diffblur.demo import format_table, run_demo
@@ -22,6 +24,27 @@ def _gallery(args: argparse.Namespace) -> int:
     return 0
 
 
+def _blur(args: argparse.Namespace) -> int:
+    from diffblur.blur_image import blur_image, load_inputs, write_picture
+
+    inputs = load_inputs(
+        args.image,
+        velocity=args.velocity,
+        velocity_file=args.velocity_file,
+        velocity_image=args.velocity_image,
+        max_speed=args.max_speed,
+        depth_file=args.depth_file,
+        depth_image=args.depth_image,
+    )
+    options = {name: value for name, value in (("samples", args.samples), ("shutter", args.shutter)) if value is not None}
+    blurred = blur_image(inputs, method=args.method, backend=args.backend, exposure=args.exposure, **options)
+    write_picture(args.out, blurred)
+    height, width = inputs.color.shape[2:]
+    speed = float(np.hypot(*inputs.velocity[0]).max())
+    print(f"blurred {args.image} ({width}x{height}, up to {speed:.1f} px) with {args.method} on {args.backend}: wrote {args.out}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from diffblur.scenes import PRESETS
 
@@ -36,7 +59,38 @@ def build_parser() -> argparse.ArgumentParser:
     gallery.add_argument("--out", required=True, help="folder for preset_gallery.png")
     gallery.add_argument("--size", type=int, default=128, help="image height and width in pixels (default: 128)")
     gallery.set_defaults(run=_gallery)
+    _add_blur_parser(commands)
     return parser
+
+
+def _add_blur_parser(commands) -> None:
+    from diffblur.blur_image import BACKENDS
+    from diffblur.modules import METHOD_INPUTS
+    from diffblur.shutters import SHUTTERS
+
+    blur = commands.add_parser(
+        "blur",
+        help="blur a photograph by a global velocity, a .npy velocity field or a painted velocity picture",
+        description="Blur a photograph (sRGB PNG/JPEG; decoded to linear light, blurred, encoded again). "
+        "Painted velocity picture: red = x, green = y, 8-bit level 128 = still, 255 / 1 = +/- MAX_SPEED px; "
+        "painted depth picture: white = near (depth 1), black = far (depth 10); both upsampled to the photograph.",
+    )
+    blur.add_argument("image", help="the photograph")
+    blur.add_argument("-o", "--out", required=True, help="output image (format from the suffix, e.g. .png)")
+    source = blur.add_mutually_exclusive_group(required=True)
+    source.add_argument("--velocity", type=float, nargs=2, metavar=("VX", "VY"), help="one velocity for the whole image, pixels (half-spread)")
+    source.add_argument("--velocity-file", help=".npy velocity field, shape (2, H, W), pixels")
+    source.add_argument("--velocity-image", help="painted velocity picture, any size (see above)")
+    blur.add_argument("--max-speed", type=float, default=20.0, help="speed of a fully red/green painted pixel (default: 20 px)")
+    depth = blur.add_mutually_exclusive_group()
+    depth.add_argument("--depth-file", help=".npy positive depth, shape (1, H, W) or (H, W)")
+    depth.add_argument("--depth-image", help="painted depth picture, any size (see above)")
+    blur.add_argument("--method", default="reconstruct", choices=tuple(METHOD_INPUTS), help="blur method (default: reconstruct)")
+    blur.add_argument("--backend", default="torch", choices=BACKENDS, help="framework (default: torch)")
+    blur.add_argument("--samples", type=int, help="taps or points per pixel (default: the method's)")
+    blur.add_argument("--shutter", choices=tuple(SHUTTERS), help="shutter window (default: the method's)")
+    blur.add_argument("--exposure", type=float, default=1.0, help="scale on the velocity (default: 1)")
+    blur.set_defaults(run=_blur)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,167 @@
+"""Blur a photograph: `diffblur blur IMAGE -o OUT`.
+
+The buffers a renderer would give (velocity, depth) come from the command line instead: one global
+velocity, a full-resolution ``.npy`` field, or a coarse hand-painted picture that is upsampled to
+the photograph's size (seed 000 Figure 12 blurs a photograph with painted buffers this way).
+
+Painted pictures are read like this (any size; upsampled bilinearly to the photograph's):
+- velocity picture: red = x, green = y, 8-bit levels; 128 means still, 255 means +max_speed and
+  1 means -max_speed pixels (the half-spread of `diffblur.conventions`), linear in between;
+- depth picture: grey level; white = near (depth 1), black = far (depth 10).
+
+Photographs are sRGB-encoded: they are decoded to linear intensities before blurring (blur mixes
+light, which is linear) and encoded again to write the result.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from diffblur._textures import linear_to_srgb, srgb_to_linear
+
+#: Depth of white and black in a painted depth picture.
+PAINTED_DEPTH_NEAR, PAINTED_DEPTH_FAR = 1.0, 10.0
+#: The 8-bit level of a still pixel in a painted velocity picture.
+PAINTED_STILL_LEVEL = 128
+BACKENDS = ("torch", "jax")
+
+__all__ = ["BACKENDS", "BlurInputs", "blur_image", "load_inputs", "read_picture", "write_picture"]
+
+
+@dataclass(frozen=True)
+class BlurInputs:
+    """The buffers of one photograph, (1, C, H, W) linear color, (1, 2, H, W) velocity in pixels,
+    (1, 1, H, W) depth, all float32."""
+
+    color: np.ndarray
+    velocity: np.ndarray
+    depth: np.ndarray
+
+
+def read_picture(path: str | os.PathLike) -> np.ndarray:
+    """An image file as float64 (H, W, C) in [0, 1] (alpha dropped, grey kept as one channel)."""
+    from PIL import Image, UnidentifiedImageError
+
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"no such image file: {os.fspath(path)!r}")
+    try:
+        with Image.open(path) as image:
+            mode = "L" if image.mode in ("1", "L", "LA", "I", "I;16", "F") else "RGB"
+            array = np.asarray(image.convert(mode), dtype=np.float64) / 255.0
+    except UnidentifiedImageError as error:
+        raise ValueError(f"{os.fspath(path)!r} is not an image file PIL can read") from error
+    return array[:, :, None] if array.ndim == 2 else array
+
+
+def write_picture(path: str | os.PathLike, linear: np.ndarray) -> None:
+    """Write (1, C, H, W) linear intensities as an sRGB-encoded 8-bit image (format from the suffix)."""
+    from PIL import Image
+
+    encoded = linear_to_srgb(linear[0]).transpose(1, 2, 0)
+    pixels = np.round(255 * encoded).astype(np.uint8)
+    Image.fromarray(pixels[:, :, 0] if pixels.shape[2] == 1 else pixels).save(path)
+
+
+def _upsample(channels: np.ndarray, height: int, width: int) -> np.ndarray:
+    """(K, h, w) -> (K, height, width), bilinear with pixel centres aligned (a painted buffer)."""
+    from skimage.transform import resize
+
+    if channels.shape[1:] == (height, width):
+        return channels
+    return np.stack([resize(c, (height, width), order=1, mode="edge", anti_aliasing=False) for c in channels])
+
+
+def _load_field(path: str, name: str, channels: int, height: int, width: int) -> np.ndarray:
+    """A .npy buffer of shape (channels, H, W) or (1, channels, H, W) matching the photograph."""
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"no such {name} file: {path!r}")
+    field = np.load(path)
+    if field.ndim == 4 and field.shape[0] == 1:
+        field = field[0]
+    if field.ndim == 2 and channels == 1:
+        field = field[None]
+    expected = (channels, height, width)
+    if field.shape != expected:
+        raise ValueError(f"{name} file {path!r} has shape {field.shape}; the photograph needs {expected} (or (1, {channels}, {height}, {width}))")
+    if not np.issubdtype(field.dtype, np.floating) and not np.issubdtype(field.dtype, np.integer):
+        raise TypeError(f"{name} file {path!r} holds {field.dtype}, not numbers")
+    if not np.all(np.isfinite(field)):
+        raise ValueError(f"{name} file {path!r} holds NaN or infinite values")
+    return field.astype(np.float64)
+
+
+def load_inputs(
+    image: str,
+    *,
+    velocity: tuple[float, float] | None = None,
+    velocity_file: str | None = None,
+    velocity_image: str | None = None,
+    max_speed: float = 20.0,
+    depth_file: str | None = None,
+    depth_image: str | None = None,
+) -> BlurInputs:
+    """The photograph and its buffers. Exactly one velocity source; depth optional (default: every
+    pixel at depth 1, so the depth test never separates anything)."""
+    sources = [s for s in (velocity, velocity_file, velocity_image) if s is not None]
+    if len(sources) != 1:
+        raise ValueError(f"give exactly one velocity source (a global velocity, a .npy field or a painted picture), got {len(sources)}")
+    if depth_file is not None and depth_image is not None:
+        raise ValueError("give at most one depth source (a .npy field or a painted picture), got both")
+    if not (max_speed > 0 and np.isfinite(max_speed)):
+        raise ValueError(f"max_speed must be a finite number > 0, got {max_speed}")
+    photo = read_picture(image)
+    height, width = photo.shape[:2]
+    color = srgb_to_linear(photo).transpose(2, 0, 1)
+    if velocity is not None:
+        if not np.all(np.isfinite(velocity)):
+            raise ValueError(f"velocity must be finite, got {velocity}")
+        field = np.broadcast_to(np.asarray(velocity, dtype=np.float64)[:, None, None], (2, height, width))
+    elif velocity_file is not None:
+        field = _load_field(velocity_file, "velocity", 2, height, width)
+    else:
+        painted = read_picture(velocity_image)
+        if painted.shape[2] < 2:
+            raise ValueError(f"velocity picture {velocity_image!r} is grey; paint x in red and y in green")
+        signed = np.clip((255 * painted[:, :, :2] - PAINTED_STILL_LEVEL) / (255 - PAINTED_STILL_LEVEL), -1, 1)
+        field = _upsample(signed.transpose(2, 0, 1) * max_speed, height, width)
+    if depth_file is not None:
+        depth = _load_field(depth_file, "depth", 1, height, width)
+        if not np.all(depth > 0):
+            raise ValueError(f"depth file {depth_file!r} must be > 0 everywhere (positive linear depth)")
+    elif depth_image is not None:
+        grey = read_picture(depth_image).mean(axis=2)
+        depth = _upsample((PAINTED_DEPTH_FAR + (PAINTED_DEPTH_NEAR - PAINTED_DEPTH_FAR) * grey)[None], height, width)
+    else:
+        depth = np.ones((1, height, width))
+    as_batch = lambda a: np.ascontiguousarray(a[None], dtype=np.float32)  # noqa: E731
+    return BlurInputs(as_batch(color), as_batch(field), as_batch(depth))
+
+
+def blur_image(inputs: BlurInputs, *, method: str = "reconstruct", backend: str = "torch", exposure: float = 1.0, **options) -> np.ndarray:
+    """Blur the photograph's buffers with `MotionBlur(method, **options)` of one backend; returns
+    (1, C, H, W) linear float32."""
+    from diffblur import checks
+    from diffblur.modules import METHOD_INPUTS
+
+    checks.require_choice("backend", backend, BACKENDS)
+    checks.require_choice("method", method, tuple(METHOD_INPUTS))
+    given = {"velocity": inputs.velocity, "depth": inputs.depth}
+    if backend == "torch":
+        import torch
+
+        import torch_impl
+
+        layer = torch_impl.MotionBlur(method, exposure=exposure, learn_exposure=False, **options)
+        arrays = {name: torch.from_numpy(given[name]) for name in METHOD_INPUTS[method]}
+        with torch.no_grad():
+            return layer(torch.from_numpy(inputs.color), **arrays).numpy()
+    import jax.numpy as jnp
+
+    import jax_impl
+
+    layer = jax_impl.MotionBlur(method, exposure=exposure, learn_exposure=False, **options)
+    arrays = {name: jnp.asarray(given[name]) for name in METHOD_INPUTS[method]}
+    return np.asarray(layer(jnp.asarray(inputs.color), **arrays))
