@@ -5,6 +5,7 @@ Mirrors `jax_impl` name by name; conventions in `diffblur.conventions`.
 
 from torch_impl._gather import gather_blur
 from torch_impl._module import MotionBlur
+from torch_impl._motion_ids import velocity_from_motion_ids
 from torch_impl._scatter import bezier_scatter
 from torch_impl._reconstruct import reconstruct
 from torch_impl._primitives import (
@@ -31,4 +32,5 @@ __all__ = [
     "soft_depth_compare",
     "tile_max",
     "velocity_from_motion",
+    "velocity_from_motion_ids",
 ]

@@ -211,3 +211,7 @@ CASES += [
 from tests.equivalence.cases_scatter import CASES as _SCATTER_CASES  # noqa: E402
 
 CASES += _SCATTER_CASES
+
+from tests.equivalence.cases_motion_ids import CASES as _MOTION_ID_CASES  # noqa: E402
+
+CASES += _MOTION_ID_CASES
