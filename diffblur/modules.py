@@ -9,22 +9,50 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from diffblur import checks
+from diffblur._scatter_options import MID_PREV_TIME
 from diffblur.shutters import ShutterWindow, get_shutter
 
 #: The methods of `MotionBlur`, with the inputs each reads besides color.
 METHOD_INPUTS: dict[str, tuple[str, ...]] = {
     "reconstruct": ("velocity", "depth"),
     "gather": ("velocity",),
+    "bezier": ("velocity", "depth"),  # velocity, or the offsets or arc of BEZIER_PATHS
 }
 
-__all__ = ["METHOD_INPUTS", "check_method_options", "learnable_shutter_fields", "require_inputs"]
+#: Arrays a method's op takes as keyword arguments: `MotionBlur`'s forward takes them, not its options.
+METHOD_ARRAY_INPUTS: dict[str, tuple[str, ...]] = {
+    "bezier": ("offset_mid_prev", "arc_center", "arc_angle", "background"),
+}
+
+#: The ways to give `MotionBlur(method="bezier")` its paths, in its forward (exposure scales each).
+BEZIER_PATHS = {
+    "velocity": ("velocity",),
+    "offsets": ("offset_prev", "offset_next", "offset_mid_prev"),
+    "arc": ("arc_center", "arc_angle"),
+}
+
+__all__ = [
+    "BEZIER_PATHS",
+    "METHOD_ARRAY_INPUTS",
+    "METHOD_INPUTS",
+    "bezier_path",
+    "bezier_paths",
+    "check_method_options",
+    "learnable_shutter_fields",
+    "require_inputs",
+    "shutter_option",
+]
 
 
 def check_method_options(method: str, op: Callable, options: Mapping[str, Any]) -> dict[str, Any]:
     """The op's keyword-only options, checked by name (a TypeError lists the valid ones)."""
     checks.require_choice("method", method, tuple(METHOD_INPUTS))
     valid = [p.name for p in inspect.signature(op).parameters.values() if p.kind is inspect.Parameter.KEYWORD_ONLY]
+    arrays = METHOD_ARRAY_INPUTS.get(method, ())
+    valid = [name for name in valid if name not in arrays]
     for name in options:
+        if name in arrays:
+            raise TypeError(f"MotionBlur(method={method!r}): {name} is an array input of the layer's call, not an option")
         if name not in valid:
             raise TypeError(f"MotionBlur(method={method!r}) got an unknown option {name!r}; valid options: {', '.join(valid)}")
     return dict(options)
@@ -43,5 +71,43 @@ def learnable_shutter_fields(shutter: str | ShutterWindow) -> dict[str, float]:
 def require_inputs(method: str, given: Mapping[str, object]) -> None:
     """Every input the method reads was passed."""
     for name in METHOD_INPUTS[method]:
-        if given.get(name) is None:
+        if method == "bezier" and name == "velocity":
+            bezier_path(given)  # a velocity, or offsets, or an arc
+        elif given.get(name) is None:
             raise ValueError(f"MotionBlur(method={method!r}) needs {name}; got none")
+
+
+def shutter_option(op: Callable, options: Mapping[str, Any]) -> str | ShutterWindow:
+    """The shutter the op will use: the `shutter` option, else the op's default."""
+    return options.get("shutter", inspect.signature(op).parameters["shutter"].default)
+
+
+def bezier_path(given: Mapping[str, object]) -> str:
+    """Which way `MotionBlur(method="bezier")` was given its paths ("velocity", "offsets" or "arc", see
+    BEZIER_PATHS) from its call's inputs (None = not given); the op checks the rest (pairs, degree).
+
+    A velocity V alone means the linear path X - V ... X + V (offsets -V, +V)."""
+    ways = [way for way, names in BEZIER_PATHS.items() if any(given.get(n) is not None for n in names)]
+    if not ways:
+        raise ValueError(
+            "MotionBlur(method='bezier') needs velocity, or offset_prev and offset_next, or arc_center and arc_angle; got none"
+        )
+    if len(ways) > 1:
+        names = [n for way in ways for n in BEZIER_PATHS[way] if given.get(n) is not None]
+        raise ValueError(f"MotionBlur(method='bezier') takes one path: {' or '.join(ways)}, got {', '.join(names)}")
+    return ways[0]
+
+
+def bezier_paths(given: Mapping[str, Any], exposure: Any, degree: int) -> dict[str, Any]:
+    """`bezier_scatter`'s path arguments from the layer's inputs, scaled by the exposure (arithmetic
+    only, so either backend's arrays work): a velocity V gives the segment's offsets (-e V, +e V) (and,
+    with degree 3, its point at t = -1/2); given offsets are multiplied by e (the path scaled about X,
+    exact for linear motion); an arc keeps its centre and turns e times its angle."""
+    way = bezier_path(given)
+    if way == "velocity":
+        scaled = given["velocity"] * exposure
+        mid = scaled * MID_PREV_TIME if degree == 3 else None
+        return {"offset_prev": -scaled, "offset_next": scaled, "offset_mid_prev": mid}
+    if way == "offsets":
+        return {n: None if given.get(n) is None else given[n] * exposure for n in BEZIER_PATHS["offsets"]}
+    return {"offset_prev": None, "offset_next": None, "arc_center": given["arc_center"], "arc_angle": given["arc_angle"] * exposure}

@@ -9,20 +9,23 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from diffblur import checks
-from diffblur.modules import check_method_options, learnable_shutter_fields, require_inputs
+from diffblur.modules import bezier_paths, check_method_options, learnable_shutter_fields, require_inputs, shutter_option
 from diffblur.shutters import get_shutter
 from jax_impl._gather import gather_blur
 from jax_impl._reconstruct import reconstruct
+from jax_impl._scatter import bezier_scatter
 
-_OPS = {"reconstruct": reconstruct, "gather": gather_blur}
+_OPS = {"reconstruct": reconstruct, "gather": gather_blur, "bezier": bezier_scatter}
 
 
 class MotionBlur(eqx.Module):
     """Motion blur as a layer, with a learnable exposure (a scale on the velocity).
 
     Args:
-        method: "reconstruct" (seed 000, needs velocity and depth) or "gather" (seed 001).
-        exposure: initial exposure, the factor applied to the velocity (1 = as given).
+        method: "reconstruct" (seed 000, needs velocity and depth), "gather" (seed 001) or "bezier"
+            (seed 003's curve scatter, `bezier_scatter`: needs depth and a path, see `__call__`).
+        exposure: initial exposure, the factor applied to the velocity (1 = as given); with "bezier",
+            to the offsets (the path scaled about each pixel) or to the arc's angle.
         learn_exposure: hold the exposure as an array field (trainable under eqx.filter); else a
             static float.
         learn_shutter: hold the shutter window's shape parameters (e.g. Tukey's taper) as array
@@ -44,27 +47,48 @@ class MotionBlur(eqx.Module):
 
     def __init__(self, method: str = "reconstruct", *, exposure: float = 1.0, learn_exposure: bool = True, learn_shutter: bool = False, **options):
         self.method = method
-        checked = check_method_options(method, _OPS.get(method, reconstruct), options)
+        op = _OPS.get(method, reconstruct)
+        checked = check_method_options(method, op, options)
         self.options = tuple(sorted(checked.items()))
         exposure = checks.require_positive_number("exposure", exposure)
         self.exposure = jnp.asarray(exposure) if learn_exposure else exposure
         self.shutter_shape = {}
         if learn_shutter:
-            self.shutter_shape = {k: jnp.asarray(v) for k, v in learnable_shutter_fields(checked.get("shutter", "box")).items()}
+            self.shutter_shape = {k: jnp.asarray(v) for k, v in learnable_shutter_fields(shutter_option(op, checked)).items()}
 
     def __call__(
         self,
         color: Float[Array, "b c h w"],
         velocity: Float[Array, "b 2 h w"] | None = None,
         depth: Float[Array, "b 1 h w"] | None = None,
+        *,
+        offset_prev: Float[Array, "b 2 h w"] | None = None,
+        offset_next: Float[Array, "b 2 h w"] | None = None,
+        offset_mid_prev: Float[Array, "b 2 h w"] | None = None,
+        arc_center: Float[Array, "b 2 h w"] | None = None,
+        arc_angle: Float[Array, "b 1 h w"] | None = None,
+        background: Float[Array, "b c h w"] | None = None,
     ) -> Float[Array, "b c h w"]:
         """Blur `color` (B, C, H, W) by `velocity` (B, 2, H, W) x exposure, with `depth` (B, 1, H, W)
-        where the method reads it."""
-        require_inputs(self.method, {"velocity": velocity, "depth": depth})
+        where the method reads it.
+
+        "bezier" takes one path: a velocity V (the segment from X - V to X + V), or offset_prev and
+        offset_next (and offset_mid_prev with degree=3), or arc_center and arc_angle, as
+        `bezier_scatter` does; and optionally its two-layer `background`."""
+        paths = {"offset_prev": offset_prev, "offset_next": offset_next, "offset_mid_prev": offset_mid_prev, "arc_center": arc_center, "arc_angle": arc_angle}
+        if self.method != "bezier":
+            for name, value in (*paths.items(), ("background", background)):
+                if value is not None:
+                    raise TypeError(f"MotionBlur(method={self.method!r}) takes {name} only with method='bezier'")
+        require_inputs(self.method, {"velocity": velocity, "depth": depth, **paths})
         options = dict(self.options)
         if self.shutter_shape:
-            window = get_shutter(options.get("shutter", "box"))
+            window = get_shutter(shutter_option(_OPS[self.method], options))
             options["shutter"] = dataclasses.replace(window, **{k: v.astype(color.dtype) for k, v in self.shutter_shape.items()})
+        if self.method == "bezier":
+            exposure = jnp.asarray(self.exposure, dtype=color.dtype)
+            given = bezier_paths({"velocity": velocity, **paths}, exposure, options.get("degree", 2))
+            return bezier_scatter(color, depth, **given, background=background, **options)
         scaled = velocity * jnp.asarray(self.exposure, dtype=velocity.dtype)
         if self.method == "reconstruct":
             return reconstruct(color, scaled, depth, **options)

@@ -9,20 +9,23 @@ from jaxtyping import Float
 from torch import Tensor, nn
 
 from diffblur import checks
-from diffblur.modules import check_method_options, learnable_shutter_fields, require_inputs
+from diffblur.modules import bezier_paths, check_method_options, learnable_shutter_fields, require_inputs, shutter_option
 from diffblur.shutters import get_shutter
 from torch_impl._gather import gather_blur
 from torch_impl._reconstruct import reconstruct
+from torch_impl._scatter import bezier_scatter
 
-_OPS = {"reconstruct": reconstruct, "gather": gather_blur}
+_OPS = {"reconstruct": reconstruct, "gather": gather_blur, "bezier": bezier_scatter}
 
 
 class MotionBlur(nn.Module):
     """Motion blur as a layer, with a learnable exposure (a scale on the velocity).
 
     Args:
-        method: "reconstruct" (seed 000, needs velocity and depth) or "gather" (seed 001).
-        exposure: initial exposure, the factor applied to the velocity (1 = as given).
+        method: "reconstruct" (seed 000, needs velocity and depth), "gather" (seed 001) or "bezier"
+            (seed 003's curve scatter, `bezier_scatter`: needs depth and a path, see `forward`).
+        exposure: initial exposure, the factor applied to the velocity (1 = as given); with "bezier",
+            to the offsets (the path scaled about each pixel) or to the arc's angle.
         learn_exposure: make the exposure an `nn.Parameter` (else a buffer).
         learn_shutter: make the shutter window's shape parameters (e.g. Tukey's taper)
             parameters too; the window comes from the `shutter` option.
@@ -38,7 +41,8 @@ class MotionBlur(nn.Module):
     def __init__(self, method: str = "reconstruct", *, exposure: float = 1.0, learn_exposure: bool = True, learn_shutter: bool = False, **options):
         super().__init__()
         self.method = method
-        self.options = check_method_options(method, _OPS.get(method, reconstruct), options)
+        op = _OPS.get(method, reconstruct)
+        self.options = check_method_options(method, op, options)
         exposure = torch.tensor(float(checks.require_positive_number("exposure", exposure)))
         if learn_exposure:
             self.exposure = nn.Parameter(exposure)
@@ -46,7 +50,7 @@ class MotionBlur(nn.Module):
             self.register_buffer("exposure", exposure)
         self.shutter_shape = nn.ParameterDict()
         if learn_shutter:
-            for name, value in learnable_shutter_fields(self.options.get("shutter", "box")).items():
+            for name, value in learnable_shutter_fields(shutter_option(op, self.options)).items():
                 self.shutter_shape[name] = nn.Parameter(torch.tensor(value))
 
     def forward(
@@ -54,14 +58,33 @@ class MotionBlur(nn.Module):
         color: Float[Tensor, "b c h w"],
         velocity: Float[Tensor, "b 2 h w"] | None = None,
         depth: Float[Tensor, "b 1 h w"] | None = None,
+        *,
+        offset_prev: Float[Tensor, "b 2 h w"] | None = None,
+        offset_next: Float[Tensor, "b 2 h w"] | None = None,
+        offset_mid_prev: Float[Tensor, "b 2 h w"] | None = None,
+        arc_center: Float[Tensor, "b 2 h w"] | None = None,
+        arc_angle: Float[Tensor, "b 1 h w"] | None = None,
+        background: Float[Tensor, "b c h w"] | None = None,
     ) -> Float[Tensor, "b c h w"]:
         """Blur `color` (B, C, H, W) by `velocity` (B, 2, H, W) x exposure, with `depth` (B, 1, H, W)
-        where the method reads it."""
-        require_inputs(self.method, {"velocity": velocity, "depth": depth})
+        where the method reads it.
+
+        "bezier" takes one path: a velocity V (the segment from X - V to X + V), or offset_prev and
+        offset_next (and offset_mid_prev with degree=3), or arc_center and arc_angle, as
+        `bezier_scatter` does; and optionally its two-layer `background`."""
+        paths = {"offset_prev": offset_prev, "offset_next": offset_next, "offset_mid_prev": offset_mid_prev, "arc_center": arc_center, "arc_angle": arc_angle}
+        if self.method != "bezier":
+            for name, value in (*paths.items(), ("background", background)):
+                if value is not None:
+                    raise TypeError(f"MotionBlur(method={self.method!r}) takes {name} only with method='bezier'")
+        require_inputs(self.method, {"velocity": velocity, "depth": depth, **paths})
         options = dict(self.options)
         if len(self.shutter_shape):
-            window = get_shutter(options.get("shutter", "box"))
+            window = get_shutter(shutter_option(_OPS[self.method], options))
             options["shutter"] = dataclasses.replace(window, **{k: v.to(color.dtype) for k, v in self.shutter_shape.items()})
+        if self.method == "bezier":
+            given = bezier_paths({"velocity": velocity, **paths}, self.exposure.to(color.dtype), options.get("degree", 2))
+            return bezier_scatter(color, depth, **given, background=background, **options)
         scaled = velocity * self.exposure.to(velocity.dtype)
         if self.method == "reconstruct":
             return reconstruct(color, scaled, depth, **options)
