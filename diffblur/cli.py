@@ -45,6 +45,15 @@ def _blur(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench(args: argparse.Namespace) -> int:
+    from diffblur.bench import run_benchmarks
+
+    scenes = tuple(args.scenes.split(",")) if args.scenes else None
+    run_benchmarks(out_dir=args.out, quick=args.quick, height=args.size, width=args.size, scenes=scenes, repeats=args.repeats, targets=args.targets)
+    print(f"wrote {args.out}/BENCHMARKS.md, {args.out}/docs/benchmarks.json, {args.out}/docs/pareto.png")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from diffblur.scenes import PRESETS
 
@@ -59,6 +68,14 @@ def build_parser() -> argparse.ArgumentParser:
     gallery.add_argument("--out", required=True, help="folder for preset_gallery.png")
     gallery.add_argument("--size", type=int, default=128, help="image height and width in pixels (default: 128)")
     gallery.set_defaults(run=_gallery)
+    bench = commands.add_parser("bench", help="time every method and setting in both backends against ground truth: BENCHMARKS.md, docs/benchmarks.json, docs/pareto.png")
+    bench.add_argument("--out", default=".", help="folder for BENCHMARKS.md and docs/ (default: .)")
+    bench.add_argument("--quick", action="store_true", help="a few settings on two scenes, one repeat, no 1280x720 targets pass")
+    bench.add_argument("--size", type=int, default=160, help="scene height and width in pixels (default: 160)")
+    bench.add_argument("--scenes", default=None, help="comma-separated scenes: 'uniform' and the presets (default: all)")
+    bench.add_argument("--repeats", type=int, default=None, help="timed runs per measurement (default: 3, quick: 1)")
+    bench.add_argument("--targets", action=argparse.BooleanOptionalAction, default=None, help="run the 1280x720 performance targets (default: unless --quick)")
+    bench.set_defaults(run=_bench)
     _add_blur_parser(commands)
     return parser
 

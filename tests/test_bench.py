@@ -1,0 +1,66 @@
+"""The benchmark command never rots: the quick sweep on tiny inputs gives finite numbers in every row
+and writes its three files (no timing is asserted)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from diffblur import bench
+from diffblur.cli import main
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    results = bench.run_benchmarks(out_dir=out, quick=True, height=16, width=16, scenes=("uniform",), progress=False)
+    return out, results
+
+
+def _numbers(row: dict) -> list[float]:
+    keys = ["psnr_db", "ssim", "forward_ms"]
+    if row["backend"] != "numpy":  # the accumulation peer has no backward
+        keys += ["backward_ms", "peak_mb"]
+    if row["backend"] == "jax":
+        keys += ["compile_s", "compile_backward_s", "xla_temp_mb"]
+    return [row[k] for k in keys]
+
+
+@pytest.mark.slow
+def test_quick_bench_rows_are_finite(quick):
+    _, results = quick
+    rows = results["rows"]
+    methods = {(r["method"], r["backend"]) for r in rows}
+    # every quick entry ran in each of its backends, and the accumulation peer ran
+    expected = {(s.method, b) for s in bench.SETTINGS if s.quick for b in s.backends}
+    assert expected | {("accumulation (renderer)", "numpy")} == methods
+    for row in rows:
+        for value in _numbers(row):
+            assert isinstance(value, float) and math.isfinite(value), row
+        assert 0.0 < row["ssim"] <= 1.0, row
+    # the brute-force peer at each method's time budget is recorded (0 instants where none fits)
+    assert all(r["brute_force_instants"] is not None for r in rows if r["backend"] != "numpy")
+
+
+@pytest.mark.slow
+def test_quick_bench_writes_its_files(quick):
+    out, results = quick
+    assert (out / "docs" / "pareto.png").stat().st_size > 1000
+    assert json.loads((out / "docs" / "benchmarks.json").read_text())["rows"] == json.loads(json.dumps(results["rows"]))
+    markdown = (out / "BENCHMARKS.md").read_text()
+    assert "## Scene `uniform` (16x16)" in markdown
+    assert results["machine"]["cpu"] in markdown
+    for row in results["rows"]:
+        assert f"| {row['setting']} | {row['backend']} |" in markdown
+
+
+def test_pareto_front_keeps_only_undominated_points():
+    points = [(1.0, 20.0), (2.0, 25.0), (3.0, 24.0), (0.5, 10.0), (4.0, 30.0), (2.0, 22.0)]
+    assert sorted(bench.pareto_front(points)) == [0, 1, 3, 4]
+
+
+def test_bench_rejects_unknown_scene(capsys):
+    assert main(["bench", "--quick", "--scenes", "nowhere", "--out", "unused"]) == 2
+    assert "scenes" in capsys.readouterr().err
