@@ -174,7 +174,7 @@ def velocity_from_motion(
     >>> velocity_from_motion(d, exposure=1.0, max_radius=20.0)[0, :, 0].T.tolist()
     [[1.5, 2.0], [0.5, 0.0], [12.0, 16.0]]
     """
-    displacement = _checks.image("displacement", displacement, channels=VECTOR_CHANNELS)
+    displacement = _checks.finite_values("displacement", _checks.image("displacement", displacement, channels=VECTOR_CHANNELS))
     max_radius = checks.require_positive_number("max_radius", max_radius)
     min_radius = checks.require_nonnegative_number("min_radius", min_radius)
     if min_radius > max_radius:

@@ -284,7 +284,7 @@ def bezier_scatter(
         _checks.same_shape("background", background, "color", color)
     extent = _extent(soft_z_extent, depth)
     window = get_shutter(shutter)
-    depth = _positive_values("depth", depth)
+    depth = _finite_values("depth", _positive_values("depth", depth))
     given = {name: _finite_values(name, value) for name, value in given.items()}
 
     if samples is None:

@@ -184,6 +184,7 @@ def velocity_from_motion(
             [12.0000, 16.0000]])
     """
     _checks.image("displacement", displacement, channels=VECTOR_CHANNELS)
+    _checks.finite_values("displacement", displacement)
     max_radius = checks.require_positive_number("max_radius", max_radius)
     min_radius = checks.require_nonnegative_number("min_radius", min_radius)
     if min_radius > max_radius:

@@ -270,6 +270,7 @@ def bezier_scatter(
     extent = _extent(soft_z_extent, depth)
     window = get_shutter(shutter)
     _checks.positive_values("depth", depth)
+    _finite_values("depth", depth)
     for name, value in given.items():
         _finite_values(name, value)
 

@@ -36,6 +36,21 @@ BAD_CALLS = [
     ("gather even samples", lambda o, b: o.gather_blur(field((1, 3, 4, 4), backend=b), field((1, 2, 4, 4), backend=b), samples=2), ValueError, r"samples must be an odd integer >= 1, got 2"),
     ("gather velocity size", lambda o, b: o.gather_blur(field((1, 3, 4, 4), backend=b), field((1, 2, 4, 5), backend=b)), ValueError, r"velocity must match color"),
     ("gather dtype mismatch", lambda o, b: o.gather_blur(field((1, 3, 4, 4), "float32", b), field((1, 2, 4, 4), "float64", b)), TypeError, r"velocity must have the dtype of color"),
+    ("gather NaN velocity", lambda o, b: o.gather_blur(field((1, 3, 4, 4), backend=b), b.array(np.full((1, 2, 4, 4), np.nan))), ValueError, r"velocity must be finite everywhere"),
+    ("gather inf velocity", lambda o, b: o.gather_blur(field((1, 3, 4, 4), backend=b), b.array(np.full((1, 2, 4, 4), -np.inf))), ValueError, r"velocity must be finite everywhere"),
+    ("gather integer color", lambda o, b: o.gather_blur(b.array(np.ones((1, 3, 4, 4)), "uint8"), field((1, 2, 4, 4), backend=b)), TypeError, r"color must have a floating dtype.*uint8; convert integer images"),
+    ("gather velocity rank", lambda o, b: o.gather_blur(field((1, 3, 4, 4), backend=b), field((2, 4, 4), backend=b)), ValueError, r"velocity must be a 4-d \(B, 2, H, W\) array"),
+    ("gather velocity channels", lambda o, b: o.gather_blur(field((1, 3, 4, 4), backend=b), field((1, 3, 4, 4), backend=b)), ValueError, r"velocity must have 2 channel"),
+    ("reconstruct integer color", lambda o, b: o.reconstruct(b.array(np.ones((1, 3, 4, 4)), "int32"), field((1, 2, 4, 4), backend=b), field((1, 1, 4, 4), backend=b)), TypeError, r"color must have a floating dtype"),
+    ("reconstruct depth dtype", lambda o, b: o.reconstruct(field((1, 3, 4, 4), backend=b), field((1, 2, 4, 4), backend=b), field((1, 1, 4, 4), "float32", b)), TypeError, r"depth must have the dtype of color"),
+    ("reconstruct negative depth", lambda o, b: reconstruct_call(b, depth_fill=-1.0)(o), ValueError, r"depth must be > 0 everywhere"),
+    ("bezier inf depth", lambda o, b: o.bezier_scatter(field((1, 3, 4, 4), backend=b), b.array(np.full((1, 1, 4, 4), np.inf)), field((1, 2, 4, 4), backend=b), field((1, 2, 4, 4), backend=b), samples=3), ValueError, r"depth must be finite everywhere"),
+    ("bezier zero depth", lambda o, b: o.bezier_scatter(field((1, 3, 4, 4), backend=b), b.array(np.zeros((1, 1, 4, 4))), field((1, 2, 4, 4), backend=b), field((1, 2, 4, 4), backend=b), samples=3), ValueError, r"depth must be > 0 everywhere"),
+    ("bezier offsets size", lambda o, b: o.bezier_scatter(field((1, 3, 4, 4), backend=b), field((1, 1, 4, 4), backend=b), field((1, 2, 4, 5), backend=b), field((1, 2, 4, 4), backend=b), samples=3), ValueError, r"offset_prev must match color in batch and size"),
+    ("displacement NaN", lambda o, b: o.velocity_from_motion(b.array(np.full((1, 2, 4, 4), np.nan))), ValueError, r"displacement must be finite everywhere"),
+    ("displacement inf", lambda o, b: o.velocity_from_motion(b.array(np.full((1, 2, 4, 4), np.inf))), ValueError, r"displacement must be finite everywhere"),
+    ("layer NaN velocity", lambda o, b: o.MotionBlur("gather")(field((1, 3, 4, 4), backend=b), b.array(np.full((1, 2, 4, 4), np.nan))), ValueError, r"velocity must be finite everywhere"),
+    ("layer zero depth", lambda o, b: o.MotionBlur("reconstruct")(field((1, 3, 4, 4), backend=b), field((1, 2, 4, 4), backend=b), b.array(np.zeros((1, 1, 4, 4)))), ValueError, r"depth must be > 0 everywhere"),
     # (id, call(ops, backend), exception, message pattern)
     ("velocity rank 3", lambda o, b: o.tile_max(field((2, 7, 11), backend=b), 4), ValueError, r"velocity must be a 4-d \(B, 2, H, W\) array, got shape \(2, 7, 11\)"),
     ("velocity 3 channels", lambda o, b: o.tile_max(field((1, 3, 7, 11), backend=b), 4), ValueError, r"velocity must have 2 channel\(s\).*got shape \(1, 3, 7, 11\)"),
@@ -73,3 +88,25 @@ BAD_CALLS = [
 def test_bad_input_raises_naming_the_argument(backend, call, exception, pattern):
     with pytest.raises(exception, match=pattern):
         call(backend.ops, backend)
+
+
+# Under jax.jit the data checks go through equinox.error_if and raise at run time (EqxRuntimeError);
+# under torch.compile they are skipped (tests/torch/test_torch_primitives.py), as the README says.
+JIT_BAD_CALLS = [
+    ("gather NaN velocity", lambda o, c, v, z: o.gather_blur(c, v * np.nan, samples=3), r"velocity must be finite everywhere"),
+    ("displacement inf", lambda o, c, v, z: o.velocity_from_motion(v * np.inf), r"displacement must be finite everywhere"),
+    ("reconstruct zero depth", lambda o, c, v, z: o.reconstruct(c, v, z * 0.0, samples=3, max_radius=2.0), r"depth must be > 0 everywhere"),
+    ("bezier inf depth", lambda o, c, v, z: o.bezier_scatter(c, z * np.inf, -v, v, samples=3), r"depth must be finite everywhere"),
+]
+
+
+@pytest.mark.parametrize("call,pattern", [c[1:] for c in JIT_BAD_CALLS], ids=[c[0] for c in JIT_BAD_CALLS])
+def test_data_checks_raise_under_jax_jit(call, pattern):
+    import jax
+    import jax.numpy as jnp
+
+    import jax_impl
+
+    c, v, z = jnp.ones((1, 3, 4, 4)), jnp.ones((1, 2, 4, 4)), jnp.ones((1, 1, 4, 4))
+    with pytest.raises(Exception, match=pattern):
+        jax.block_until_ready(jax.jit(lambda c, v, z: call(jax_impl, c, v, z))(c, v, z))
