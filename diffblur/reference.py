@@ -345,3 +345,7 @@ def reconstruct(
 from diffblur._reference_scatter import bezier_control_points, bezier_scatter  # noqa: E402
 
 __all__ += ["bezier_control_points", "bezier_scatter"]
+
+from diffblur._reference_warp import accumulate_warps, warp_blend  # noqa: E402
+
+__all__ += ["accumulate_warps", "warp_blend"]

@@ -8,6 +8,7 @@ from jax_impl._module import MotionBlur
 from jax_impl._motion_ids import velocity_from_motion_ids
 from jax_impl._scatter import bezier_scatter
 from jax_impl._reconstruct import reconstruct
+from jax_impl._warp import accumulate_warps, warp_blend
 from jax_impl._primitives import (
     cone,
     cylinder,
@@ -21,6 +22,7 @@ from jax_impl._primitives import (
 
 __all__ = [
     "MotionBlur",
+    "accumulate_warps",
     "bezier_scatter",
     "cone",
     "cylinder",
@@ -33,4 +35,5 @@ __all__ = [
     "tile_max",
     "velocity_from_motion",
     "velocity_from_motion_ids",
+    "warp_blend",
 ]

@@ -101,6 +101,8 @@ def _valid_calls(backend):
         "MotionBlur": lambda f: _checked_layer_call(f("reconstruct", samples=3, max_radius=4.0), image(3), image(2), abs(image(1)) + 1.0),
         "reconstruct": lambda f: f(image(3), image(2), abs(image(1)) + 1.0, samples=3, max_radius=4.0),
         "bezier_scatter": lambda f: f(image(3), abs(image(1)) + 1.0, image(2), image(2), samples=3),
+        "accumulate_warps": lambda f: f(image(3), image(2), instants=3),
+        "warp_blend": lambda f: f(image(3), image(2), iterations=2),
         "velocity_from_motion_ids": lambda f: f(backend.array(rng.integers(0, 3, size=(2, 1, 9, 10)), "int64"), backend.array(rng.normal(size=(2, 3, 2)))),
     }
 

@@ -8,6 +8,7 @@ from torch_impl._module import MotionBlur
 from torch_impl._motion_ids import velocity_from_motion_ids
 from torch_impl._scatter import bezier_scatter
 from torch_impl._reconstruct import reconstruct
+from torch_impl._warp import accumulate_warps, warp_blend
 from torch_impl._primitives import (
     cone,
     cylinder,
@@ -21,6 +22,7 @@ from torch_impl._primitives import (
 
 __all__ = [
     "MotionBlur",
+    "accumulate_warps",
     "bezier_scatter",
     "cone",
     "cylinder",
@@ -33,4 +35,5 @@ __all__ = [
     "tile_max",
     "velocity_from_motion",
     "velocity_from_motion_ids",
+    "warp_blend",
 ]

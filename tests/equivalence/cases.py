@@ -215,3 +215,7 @@ CASES += _SCATTER_CASES
 from tests.equivalence.cases_motion_ids import CASES as _MOTION_ID_CASES  # noqa: E402
 
 CASES += _MOTION_ID_CASES
+
+from tests.equivalence.cases_warp import CASES as _WARP_CASES  # noqa: E402
+
+CASES += _WARP_CASES
