@@ -17,11 +17,14 @@ METHOD_INPUTS: dict[str, tuple[str, ...]] = {
     "reconstruct": ("velocity", "depth"),
     "gather": ("velocity",),
     "bezier": ("velocity", "depth"),  # velocity, or the offsets or arc of BEZIER_PATHS
+    "warp_blend": ("velocity",),
+    "accumulate": ("velocity",),
 }
 
 #: Arrays a method's op takes as keyword arguments: `MotionBlur`'s forward takes them, not its options.
 METHOD_ARRAY_INPUTS: dict[str, tuple[str, ...]] = {
     "bezier": ("offset_mid_prev", "arc_center", "arc_angle", "background"),
+    "accumulate": ("offset_prev", "offset_next"),
 }
 
 #: The ways to give `MotionBlur(method="bezier")` its paths, in its forward (exposure scales each).
@@ -79,6 +82,8 @@ def require_inputs(method: str, given: Mapping[str, object]) -> None:
 
 def shutter_option(op: Callable, options: Mapping[str, Any]) -> str | ShutterWindow:
     """The shutter the op will use: the `shutter` option, else the op's default."""
+    if "shutter" not in inspect.signature(op).parameters:
+        raise ValueError(f"{op.__name__} has no shutter, so no shutter shape to learn")
     return options.get("shutter", inspect.signature(op).parameters["shutter"].default)
 
 

@@ -14,8 +14,9 @@ from diffblur.shutters import get_shutter
 from jax_impl._gather import gather_blur
 from jax_impl._reconstruct import reconstruct
 from jax_impl._scatter import bezier_scatter
+from jax_impl._warp import accumulate_warps, warp_blend
 
-_OPS = {"reconstruct": reconstruct, "gather": gather_blur, "bezier": bezier_scatter}
+_OPS = {"reconstruct": reconstruct, "gather": gather_blur, "bezier": bezier_scatter, "warp_blend": warp_blend, "accumulate": accumulate_warps}
 
 
 class MotionBlur(eqx.Module):
@@ -24,6 +25,8 @@ class MotionBlur(eqx.Module):
     Args:
         method: "reconstruct" (seed 000, needs velocity and depth), "gather" (seed 001) or "bezier"
             (seed 003's curve scatter, `bezier_scatter`: needs depth and a path, see `__call__`).
+            "warp_blend" (seed 002, `warp_blend`) and "accumulate" (`accumulate_warps`, the
+            accumulation baseline) read velocity only.
         exposure: initial exposure, the factor applied to the velocity (1 = as given); with "bezier",
             to the offsets (the path scaled about each pixel) or to the arc's angle.
         learn_exposure: hold the exposure as an array field (trainable under eqx.filter); else a
@@ -92,4 +95,6 @@ class MotionBlur(eqx.Module):
         scaled = velocity * jnp.asarray(self.exposure, dtype=velocity.dtype)
         if self.method == "reconstruct":
             return reconstruct(color, scaled, depth, **options)
+        if self.method in ("warp_blend", "accumulate"):
+            return _OPS[self.method](color, scaled, **options)
         return gather_blur(color, scaled, **options)

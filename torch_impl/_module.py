@@ -14,8 +14,9 @@ from diffblur.shutters import get_shutter
 from torch_impl._gather import gather_blur
 from torch_impl._reconstruct import reconstruct
 from torch_impl._scatter import bezier_scatter
+from torch_impl._warp import accumulate_warps, warp_blend
 
-_OPS = {"reconstruct": reconstruct, "gather": gather_blur, "bezier": bezier_scatter}
+_OPS = {"reconstruct": reconstruct, "gather": gather_blur, "bezier": bezier_scatter, "warp_blend": warp_blend, "accumulate": accumulate_warps}
 
 
 class MotionBlur(nn.Module):
@@ -24,6 +25,8 @@ class MotionBlur(nn.Module):
     Args:
         method: "reconstruct" (seed 000, needs velocity and depth), "gather" (seed 001) or "bezier"
             (seed 003's curve scatter, `bezier_scatter`: needs depth and a path, see `forward`).
+            "warp_blend" (seed 002, `warp_blend`) and "accumulate" (`accumulate_warps`, the
+            accumulation baseline) read velocity only.
         exposure: initial exposure, the factor applied to the velocity (1 = as given); with "bezier",
             to the offsets (the path scaled about each pixel) or to the arc's angle.
         learn_exposure: make the exposure an `nn.Parameter` (else a buffer).
@@ -88,6 +91,8 @@ class MotionBlur(nn.Module):
         scaled = velocity * self.exposure.to(velocity.dtype)
         if self.method == "reconstruct":
             return reconstruct(color, scaled, depth, **options)
+        if self.method in ("warp_blend", "accumulate"):
+            return _OPS[self.method](color, scaled, **options)
         return gather_blur(color, scaled, **options)
 
     def extra_repr(self) -> str:

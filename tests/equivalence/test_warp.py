@@ -153,3 +153,30 @@ BAD_CALLS = [
 def test_bad_input(backend, call, error, pattern):
     with pytest.raises(error, match=pattern):
         call(backend.ops, backend)
+
+
+LAYER_CALLS = [
+    ("warp_blend", {}),
+    ("warp_blend", {"iterations": 2, "backward_scale": 0.5, "alpha": (0.5, 0.8), "sampling": "nearest"}),
+    ("accumulate", {}),
+    ("accumulate", {"instants": 3, "shutter": "tent", "sampling": "nearest"}),
+]
+
+
+@pytest.mark.parametrize("method,options", LAYER_CALLS, ids=[f"{m}-{'-'.join(o) or 'defaults'}" for m, o in LAYER_CALLS])
+def test_layer_equals_functional(backend, method, options):
+    rng = np.random.default_rng(15)
+    color, velocity = backend.array(rng.random((2, 3, 7, 8))), backend.array(rng.normal(size=(2, 2, 7, 8)) * 2.0)
+    layer = backend.ops.MotionBlur(method, exposure=0.625, **options)
+    op = backend.ops.warp_blend if method == "warp_blend" else backend.ops.accumulate_warps
+    expected = op(color, velocity * 0.625, **options)
+    np.testing.assert_allclose(backend.numpy(layer(color, velocity)), backend.numpy(expected), rtol=1e-12, atol=1e-12)
+
+
+def test_layer_refuses_arrays_as_options_and_a_shutter_it_does_not_have(backend):
+    with pytest.raises(TypeError, match=r"offset_prev is an array input of the layer's call, not an option"):
+        backend.ops.MotionBlur("accumulate", offset_prev=1.0)
+    with pytest.raises(ValueError, match=r"warp_blend has no shutter"):
+        backend.ops.MotionBlur("warp_blend", learn_shutter=True)
+    with pytest.raises(ValueError, match=r"needs velocity"):
+        backend.ops.MotionBlur("warp_blend")(backend.array(np.ones((1, 3, 4, 4))))
