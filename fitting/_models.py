@@ -1,0 +1,416 @@
+"""Motion models: a few parameters in, the ops' inputs out, so a user models only what the scene needs.
+
+A model is written once for both frameworks: it receives the framework's adapter (`be`, see
+`fitting._backends`) and the current pyramid level's arrays (`ctx`), and returns the re-blurred
+image. Parameters are a dict of NumPy arrays outside the solver (`init`, `rescale`, `report`) and of
+framework arrays inside it (`render`, `prior`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from diffblur.shutters import LinearRamp, ShutterWindow, Trapezoid, Tukey, get_shutter
+
+#: Default start for velocities: away from the v = 0 stationary point of a symmetric shutter, and
+#: with unequal components so that it is not on a symmetry axis of the image either.
+DEFAULT_VELOCITY = (1.0, 0.5)
+#: Starts closer to 0 than this (pixels) are moved out to it (see `nudge`).
+MIN_START_SPEED = 0.1
+
+
+def nudge(v: np.ndarray) -> np.ndarray:
+    """A start velocity, moved off v = 0: under a symmetric shutter the blur is even in v, so its
+    gradient vanishes at 0 and a solver started there never leaves."""
+    v = np.array(v, dtype=np.float64).reshape(2)
+    speed = math.hypot(*v)
+    if speed < MIN_START_SPEED:
+        v = v / speed * MIN_START_SPEED if speed > 0 else np.array([MIN_START_SPEED, 0.5 * MIN_START_SPEED])
+    return v
+
+
+def is_symmetric(window: ShutterWindow) -> bool:
+    """w(t) == w(-t): then a velocity -v blurs exactly like +v."""
+    t = np.linspace(-1.0, 1.0, 41)
+    return bool(np.allclose(np.asarray(window.weight(t), dtype=np.float64), np.asarray(window.weight(-t), dtype=np.float64)))
+
+
+def canonical_sign(v: np.ndarray) -> np.ndarray:
+    """The representative of {v, -v} with x > 0 (or x == 0 and y >= 0)."""
+    v = np.asarray(v, dtype=np.float64)
+    flip = v[..., 0] < 0
+    flip = flip | ((v[..., 0] == 0) & (v[..., 1] < 0))
+    return np.where(flip[..., None], -v, v)
+
+
+def interpolation_matrix(size: int, nodes: int) -> np.ndarray:
+    """(size, nodes) linear interpolation from `nodes` evenly spread samples (the first at pixel 0,
+    the last at pixel size - 1) to every pixel: a smooth, exact upsampling both frameworks share."""
+    if nodes == 1:
+        return np.ones((size, 1))
+    position = np.linspace(0.0, nodes - 1.0, size)
+    low = np.minimum(np.floor(position).astype(int), nodes - 2)
+    frac = position - low
+    out = np.zeros((size, nodes))
+    out[np.arange(size), low] = 1.0 - frac
+    out[np.arange(size), low + 1] += frac
+    return out
+
+
+@dataclass
+class Context:
+    """One pyramid level, in the solver's framework: the images and what the model reads."""
+
+    be: Any
+    color: Any
+    depth: Any
+    target: Any
+    height: int
+    width: int
+    scale: float  # this level's pixels per full-resolution pixel
+    options: dict
+    extras: dict
+
+
+def _blur(ctx: Context, velocity: Any, shutter: Any = None) -> Any:
+    """The configured op on a (1, 2, h, w) velocity field."""
+    o = ctx.options
+    shutter = o["shutter"] if shutter is None else shutter
+    if o["method"] == "gather":
+        return ctx.be.ops.gather_blur(ctx.color, velocity, samples=o["samples"], shutter=shutter)
+    # Seed 000's taps span S / (S + 1) of the exposure: scale the velocity so the blur spans all of it
+    # and the parameters are the scene's (see recover's docstring).
+    span = (o["samples"] + 1.0) / o["samples"]
+    return ctx.be.ops.reconstruct(ctx.color, velocity * span, ctx.depth, samples=o["samples"], max_radius=o["max_radius"], shutter=shutter)
+
+
+class Model:
+    """Base class; see the module docstring."""
+
+    name: ClassVar[str]
+    #: Adam's default learning rate (parameter units per step).
+    learning_rate: ClassVar[float] = 0.1
+    #: Whether the blur depends on the sign of the velocity only through the shutter.
+    sign_ambiguous: ClassVar[bool] = True
+
+    def needs(self) -> tuple[str, ...]:
+        return ()
+
+    def init(self, ctx: Context, init: dict | None) -> dict[str, np.ndarray]:
+        raise NotImplementedError
+
+    def velocity(self, p: dict, ctx: Context) -> Any:
+        raise NotImplementedError
+
+    def render(self, p: dict, ctx: Context) -> Any:
+        return _blur(ctx, self.velocity(p, ctx))
+
+    def prior(self, p: dict, ctx: Context) -> list:
+        """Extra least-squares residuals (regularisation), each a flat array; none by default."""
+        return []
+
+    def rescale(self, p: dict, factor: float, height: int, width: int) -> dict[str, np.ndarray]:
+        """The parameters at a level `factor` times finer (height x width pixels)."""
+        return {k: np.array(v) for k, v in p.items()}
+
+    def report(self, p: dict, symmetric: bool) -> dict[str, Any]:
+        raise NotImplementedError
+
+
+def _start(init: dict | None, name: str, default: Any) -> np.ndarray:
+    return np.array(default if not init or name not in init else init[name], dtype=np.float64)
+
+
+class Global(Model):
+    """One velocity (x, y) in pixels for the whole image: 2 parameters."""
+
+    name = "global"
+    learning_rate = 0.2
+
+    def init(self, ctx, init):
+        return {"velocity": nudge(_start(init, "velocity", DEFAULT_VELOCITY))}
+
+    def velocity(self, p, ctx):
+        return ctx.be.broadcast(p["velocity"].reshape(1, 2, 1, 1), (1, 2, ctx.height, ctx.width))
+
+    def rescale(self, p, factor, height, width):
+        return {"velocity": p["velocity"] * factor}
+
+    def report(self, p, symmetric):
+        v = np.asarray(p["velocity"], dtype=np.float64)
+        return {"velocity": (canonical_sign(v) if symmetric else v).tolist()}
+
+
+class Exposure(Model):
+    """Known motion (`velocity=`, the half-spread at exposure 1), unknown exposure: 1 parameter."""
+
+    name = "exposure"
+    learning_rate = 0.05
+
+    def needs(self):
+        return ("velocity",)
+
+    def init(self, ctx, init):
+        return {"exposure": _start(init, "exposure", 0.5)}
+
+    def velocity(self, p, ctx):
+        return ctx.extras["velocity"] * p["exposure"]
+
+    def report(self, p, symmetric):
+        e = float(p["exposure"])
+        return {"exposure": abs(e) if symmetric else e}
+
+
+#: Shutter families with one shape parameter: (window class, field, squashing into its range).
+SHUTTER_FAMILIES = {
+    "linear_ramp": (LinearRamp, "slope", "tanh"),
+    "tukey": (Tukey, "taper", "sigmoid"),
+    "trapezoid": (Trapezoid, "ramp", "sigmoid"),
+}
+
+
+def _squash(kind: str, x: Any, xp: Any) -> Any:
+    return xp.tanh(x) if kind == "tanh" else 1.0 / (1.0 + xp.exp(-x))
+
+
+def _unsquash(kind: str, y: float) -> float:
+    y = min(max(y, -0.999), 0.999) if kind == "tanh" else min(max(y, 0.001), 0.999)
+    return math.atanh(y) if kind == "tanh" else math.log(y / (1.0 - y))
+
+
+class Shutter(Model):
+    """Known motion, unknown shutter shape: the shape parameter of `family` (1 parameter), and the
+    exposure too with fit_exposure (2). The shape is held squashed into its range (tanh, sigmoid)."""
+
+    name = "shutter"
+    learning_rate = 0.1
+    sign_ambiguous = False
+
+    def __init__(self, family: str = "linear_ramp", fit_exposure: bool = False) -> None:
+        if family not in SHUTTER_FAMILIES:
+            raise ValueError(f"shutter_family must be one of {', '.join(repr(f) for f in SHUTTER_FAMILIES)}; got {family!r}")
+        self.family = family
+        self.fit_exposure = fit_exposure
+
+    def needs(self):
+        return ("velocity",)
+
+    def init(self, ctx, init):
+        cls, field, kind = SHUTTER_FAMILIES[self.family]
+        shape = float(_start(init, field, 0.25 if kind == "tanh" else 0.5))
+        p = {"shape": np.array(_unsquash(kind, shape))}
+        if self.fit_exposure:
+            p["exposure"] = _start(init, "exposure", 0.8)
+        return p
+
+    def render(self, p, ctx):
+        cls, field, kind = SHUTTER_FAMILIES[self.family]
+        window = cls(**{field: _squash(kind, p["shape"], ctx.be.xp)})
+        exposure = p["exposure"] if self.fit_exposure else 1.0
+        return _blur(ctx, ctx.extras["velocity"] * exposure, shutter=window)
+
+    def velocity(self, p, ctx):
+        return ctx.extras["velocity"] * (p["exposure"] if self.fit_exposure else 1.0)
+
+    def report(self, p, symmetric):
+        cls, field, kind = SHUTTER_FAMILIES[self.family]
+        out = {"shutter": self.family, field: float(_squash(kind, np.asarray(p["shape"]), np))}
+        if self.fit_exposure:
+            out["exposure"] = float(p["exposure"])
+        return out
+
+
+class MotionIds(Model):
+    """One velocity per ID of a given ID map (`ids=`, seed 001's vector motion IDs): 2 per ID."""
+
+    name = "motion_ids"
+    learning_rate = 0.2
+
+    def needs(self):
+        return ("ids",)
+
+    def init(self, ctx, init):
+        count = ctx.extras["palette_size"]
+        start = _start(init, "palette", np.tile(DEFAULT_VELOCITY, (count, 1)))
+        return {"palette": np.stack([nudge(v) for v in start.reshape(count, 2)])}
+
+    def velocity(self, p, ctx):
+        return ctx.be.ops.velocity_from_motion_ids(ctx.extras["ids"], p["palette"][None])
+
+    def rescale(self, p, factor, height, width):
+        return {"palette": p["palette"] * factor}
+
+    def report(self, p, symmetric):
+        palette = np.asarray(p["palette"], dtype=np.float64)
+        return {"palette": (canonical_sign(palette) if symmetric else palette).tolist()}
+
+
+def _centred_grid(ctx: Context) -> tuple[Any, Any]:
+    """(1, 1, h, w) x - cx and y - cy about the image centre."""
+    x = np.arange(ctx.width) - (ctx.width - 1) / 2.0
+    y = np.arange(ctx.height) - (ctx.height - 1) / 2.0
+    return ctx.be.array(np.broadcast_to(x, (1, 1, ctx.height, ctx.width))), ctx.be.array(np.broadcast_to(y[:, None], (1, 1, ctx.height, ctx.width)))
+
+
+class CameraMotion(Model):
+    """Pan, zoom (a dolly) and roll of the camera, 4 parameters, as a velocity field with parallax:
+
+        v(X) = pan / Z + advance (X - c) / Z + sin(roll) (-(y - cy), x - cx)
+
+    with Z the depth (1 without depth), c the image centre. pan is in pixels x depth units (a point at
+    depth Z moves pan / Z pixels, as `diffblur.scenes.Camera`'s pan), advance in depth units (the
+    dolly's first-order image motion), roll in radians at t = 1.
+    """
+
+    name = "camera"
+    learning_rate = 0.1
+
+    def init(self, ctx, init):
+        z = float(np.median(ctx.extras["depth_numpy"]))
+        return {
+            "pan": nudge(_start(init, "pan", np.array(DEFAULT_VELOCITY) * z) / z) * z,
+            "advance": _start(init, "advance", 0.0),
+            "roll": _start(init, "roll", 0.0),
+        }
+
+    def velocity(self, p, ctx):
+        x, y = _centred_grid(ctx)
+        inverse_depth = 1.0 / ctx.depth
+        s = ctx.be.xp.sin(p["roll"])
+        u = p["pan"][0] * inverse_depth + p["advance"] * x * inverse_depth - s * y
+        v = p["pan"][1] * inverse_depth + p["advance"] * y * inverse_depth + s * x
+        return ctx.be.concat([u, v], axis=1)
+
+    def rescale(self, p, factor, height, width):
+        return {"pan": p["pan"] * factor, "advance": np.array(p["advance"]), "roll": np.array(p["roll"])}
+
+    def report(self, p, symmetric):
+        pan, advance, roll = np.asarray(p["pan"]), float(p["advance"]), float(p["roll"])
+        if symmetric and (pan[0] < 0 or (pan[0] == 0 and pan[1] < 0)):
+            pan, advance, roll = -pan, -advance, -roll
+        return {"pan": pan.tolist(), "advance": advance, "roll": roll}
+
+
+class RotationModel(Model):
+    """A centre (x, y) and an angle (radians at t = 1): curved motion through the arc scatter, 3
+    parameters. Only pixels of `mask=` turn (default: those nearer than the farthest depth)."""
+
+    name = "rotation"
+    learning_rate = 0.05
+
+    def init(self, ctx, init):
+        mask = ctx.extras["mask_numpy"][0, 0]
+        ys, xs = np.nonzero(mask > 0.5)
+        centroid = (xs.mean(), ys.mean()) if len(xs) else ((ctx.width - 1) / 2, (ctx.height - 1) / 2)
+        angle = float(_start(init, "angle", 0.1))
+        if abs(angle) < 1e-3:  # the arc's blur is even in the angle under a symmetric shutter
+            angle = 1e-3
+        return {"center": _start(init, "center", centroid), "angle": np.array(angle)}
+
+    def velocity(self, p, ctx):
+        """The arc's half-spread sin(angle) R90 (X - centre), for pictures."""
+        x = ctx.be.array(np.broadcast_to(np.arange(ctx.width, dtype=np.float64), (1, 1, ctx.height, ctx.width))) - p["center"][0]
+        y = ctx.be.array(np.broadcast_to(np.arange(ctx.height, dtype=np.float64)[:, None], (1, 1, ctx.height, ctx.width))) - p["center"][1]
+        s = ctx.be.xp.sin(p["angle"]) * ctx.extras["mask"]
+        return ctx.be.concat([-s * y, s * x], axis=1)
+
+    def render(self, p, ctx):
+        o = ctx.options
+        center = ctx.be.broadcast(p["center"].reshape(1, 2, 1, 1), (1, 2, ctx.height, ctx.width))
+        kwargs = {} if ctx.extras.get("background") is None else {"background": ctx.extras["background"]}
+        return ctx.be.ops.bezier_scatter(
+            ctx.color, ctx.depth, None, None, arc_center=center, arc_angle=p["angle"] * ctx.extras["mask"], samples=o["arc_samples"], shutter=o["shutter"], **kwargs
+        )
+
+    def rescale(self, p, factor, height, width):
+        # Pixel centres at integers: a coarse pixel i covers fine pixels 2i and 2i + 1, centre 2i + 1/2.
+        return {"center": p["center"] * factor + (factor - 1.0) / 2.0, "angle": np.array(p["angle"])}
+
+    def report(self, p, symmetric):
+        angle = float(p["angle"])
+        return {"center": np.asarray(p["center"]).tolist(), "angle": abs(angle) if symmetric else angle}
+
+
+class Tiles(Model):
+    """A coarse grid of velocities (`grid=(rows, columns)`, 2 per node), upsampled bilinearly
+    (nodes at the image's corners and evenly between)."""
+
+    name = "tiles"
+    learning_rate = 0.2
+
+    def __init__(self, grid: tuple[int, int] = (3, 3)) -> None:
+        self.grid = (int(grid[0]), int(grid[1]))
+
+    def init(self, ctx, init):
+        start = _start(init, "tiles", np.broadcast_to(np.reshape(DEFAULT_VELOCITY, (2, 1, 1)), (2, *self.grid)))
+        return {"tiles": start.reshape(2, *self.grid)}
+
+    def velocity(self, p, ctx):
+        rows = ctx.be.array(interpolation_matrix(ctx.height, self.grid[0]))
+        cols = ctx.be.array(interpolation_matrix(ctx.width, self.grid[1]))
+        return ctx.be.einsum("yi,cij,xj->cyx", rows, p["tiles"], cols)[None]
+
+    def rescale(self, p, factor, height, width):
+        return {"tiles": p["tiles"] * factor}
+
+    def report(self, p, symmetric):
+        return {"tiles": np.asarray(p["tiles"]).tolist()}
+
+
+class Dense(Model):
+    """A velocity per pixel (2 h w parameters) with a smoothness prior: tv_weight times the mean of
+    sqrt(d^2 + eps) over the field's horizontal and vertical differences (total variation,
+    Charbonnier-smoothed so it is differentiable at 0)."""
+
+    name = "dense"
+    learning_rate = 0.1
+    TV_EPS = 1e-3
+
+    def __init__(self, tv_weight: float = 1e-3) -> None:
+        self.tv_weight = float(tv_weight)
+
+    def init(self, ctx, init):
+        if init and "velocity" in init:
+            field = np.asarray(init["velocity"], dtype=np.float64).reshape(2, ctx.height, ctx.width)
+        else:
+            field = np.broadcast_to(np.reshape(DEFAULT_VELOCITY, (2, 1, 1)), (2, ctx.height, ctx.width)).copy()
+        return {"velocity": field}
+
+    def velocity(self, p, ctx):
+        return p["velocity"][None]
+
+    def prior(self, p, ctx):
+        v = p["velocity"]
+        dx = (v[:, :, 1:] - v[:, :, :-1]).reshape(-1)
+        dy = (v[:, 1:, :] - v[:, :-1, :]).reshape(-1)
+        count = dx.shape[0] + dy.shape[0]
+        # Residuals r with sum r^2 = tv_weight * mean(sqrt(d^2 + eps)).
+        weight = math.sqrt(self.tv_weight / count)
+        return [weight * (d * d + self.TV_EPS) ** 0.25 for d in (dx, dy)]
+
+    def rescale(self, p, factor, height, width):
+        v = np.asarray(p["velocity"])
+        rows = interpolation_matrix(height, v.shape[1])
+        cols = interpolation_matrix(width, v.shape[2])
+        return {"velocity": np.einsum("yi,cij,xj->cyx", rows, v, cols) * factor}
+
+    def report(self, p, symmetric):
+        v = np.asarray(p["velocity"])
+        return {"velocity_mean": v.reshape(2, -1).mean(axis=1).tolist(), "velocity_shape": list(v.shape)}
+
+
+MODELS: tuple[str, ...] = ("global", "exposure", "shutter", "motion_ids", "camera", "rotation", "tiles", "dense")
+
+
+def build_model(name: str, *, grid: tuple[int, int] = (3, 3), tv_weight: float = 1e-3, shutter_family: str = "linear_ramp", fit_exposure: bool = False) -> Model:
+    if name == "shutter":
+        return Shutter(shutter_family, fit_exposure)
+    if name == "tiles":
+        return Tiles(grid)
+    if name == "dense":
+        return Dense(tv_weight)
+    return {"global": Global, "exposure": Exposure, "motion_ids": MotionIds, "camera": CameraMotion, "rotation": RotationModel}[name]()

@@ -1,0 +1,270 @@
+"""`recover`: fit a motion model to a blurred target, in PyTorch or JAX, coarse to fine."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from diffblur import checks
+from diffblur.shutters import get_shutter
+from fitting import _backends, _models, _pyramid, _solvers
+
+METHODS = ("reconstruct", "gather")
+
+
+@dataclass
+class FitResult:
+    """What `recover` found.
+
+    params: the model's parameters as plain numbers and lists (e.g. {"velocity": [vx, vy]} for
+    `global`; velocities up to sign, in canonical sign, when the shutter is symmetric). loss: the final
+    mean squared residual (plus prior) on the cropped finest level. blurred: (1, C, H, W) the target
+    re-blurred with the fitted parameters. history: the loss at every solver step, all levels in
+    order. velocity: (1, 2, H, W) the fitted velocity field (pixels). n_params, seconds, the rest as
+    named.
+    """
+
+    model: str
+    backend: str
+    solver: str
+    params: dict[str, Any]
+    loss: float
+    blurred: np.ndarray
+    history: list[float]
+    velocity: np.ndarray
+    n_params: int
+    levels: int
+    seconds: float
+    raw: dict[str, np.ndarray] = field(repr=False, default_factory=dict)
+    pixels: int = 0
+
+
+def _as_image(name: str, x: Any, channels: int | None = None) -> np.ndarray:
+    x = np.asarray(x.detach().cpu() if hasattr(x, "detach") else x, dtype=np.float64)
+    checks.require_image(name, x.shape, channels=channels)
+    if x.shape[0] != 1:
+        raise ValueError(f"{name} must hold one image (batch 1), got shape {x.shape}")
+    return x
+
+
+def _flatten(p: dict[str, np.ndarray]) -> tuple[np.ndarray, list[tuple[str, tuple[int, ...]]]]:
+    spec = [(k, np.shape(v)) for k, v in p.items()]
+    return np.concatenate([np.ravel(v) for v in p.values()]).astype(np.float64), spec
+
+
+def _unflatten(y: Any, spec: list[tuple[str, tuple[int, ...]]]) -> dict[str, Any]:
+    out, start = {}, 0
+    for name, shape in spec:
+        size = int(np.prod(shape)) if shape else 1
+        out[name] = y[start : start + size].reshape(shape)
+        start += size
+    return out
+
+
+def _auto_max_radius(speed: float, samples: int, size: int) -> float:
+    return float(min(max(2.0, math.ceil(speed * (samples + 1) / samples * 1.25) + 1.0), max(2.0, size / 2)))
+
+
+def recover(
+    sharp: Any,
+    target: Any,
+    *,
+    model: str,
+    depth: Any = None,
+    backend: str = "torch",
+    method: str = "reconstruct",
+    solver: str | None = None,
+    iterations: int | None = None,
+    levels: int = 1,
+    init: dict[str, Any] | None = None,
+    velocity: Any = None,
+    ids: Any = None,
+    mask: Any = None,
+    background: Any = None,
+    shutter: Any = "box",
+    samples: int = 9,
+    arc_samples: int = 16,
+    max_radius: float | None = None,
+    margin: int | None = None,
+    grid: tuple[int, int] = (3, 3),
+    tv_weight: float = 1e-3,
+    shutter_family: str = "linear_ramp",
+    fit_exposure: bool = False,
+    learning_rate: float | None = None,
+    jac: str = "fwd",
+    dtype: str = "float64",
+    on_step: Callable[[int, float], None] | None = None,
+) -> FitResult:
+    """Recover a motion model's parameters from a sharp frame and a blurred target.
+
+    Args:
+        sharp, target: (1, C, H, W) linear images (NumPy, or any array NumPy can read).
+        model: one of `fitting.MODELS`: "global", "exposure", "shutter", "motion_ids", "camera",
+            "rotation", "tiles", "dense".
+        depth: (1, 1, H, W) positive depth (reconstruct's depth test, the camera's parallax, the
+            scatter's depth test); None for a flat scene (depth 1).
+        backend: "torch" or "jax". solver: torch "adam" (default) or "lbfgs"; JAX "lm"
+            (Levenberg-Marquardt, default; matrix-free CG for `dense`), "dogleg", "bfgs", "lbfgs" (the
+            default for `dense`) or "adam" (optax through optimistix).
+        method: the op the blur goes through, "reconstruct" (seed 000) or "gather" (seed 001);
+            `rotation` always uses the arc scatter (seed 003). Seed 000's taps span S / (S + 1) of the
+            exposure, so the reconstruct path scales the velocity by (S + 1) / S: the parameters are
+            the scene's, not the filter's.
+        iterations: solver steps per level (default: 60 for Adam, 20 otherwise).
+        levels: pyramid levels for coarse-to-fine (1 = single scale); each level halves the size,
+            the fit at a coarse level starts the next finer one. Large blurs have local minima that
+            the coarse levels step over.
+        init: starting values by parameter name, full resolution ({"velocity": (vx, vy)} ...). A
+            velocity start at 0 is moved to 0.1 px: v = 0 is a stationary point of a symmetric shutter.
+        velocity: the known motion of `exposure` and `shutter`, (1, 2, H, W) or (vx, vy), the
+            half-spread at exposure 1. ids: (1, 1, H, W) integer ID map of `motion_ids`. mask: (1, 1,
+            H, W) the pixels that turn in `rotation` (default: those nearer than the farthest depth).
+            background: (1, C, H, W) for the scatter's two-layer normalisation (`rotation`).
+        shutter: the window the blur assumes (name or `diffblur.shutters` window); with a symmetric
+            one the velocity is reported up to sign (canonical sign: x > 0), an asymmetric one
+            (LinearRamp) resolves it.
+        samples: taps of reconstruct/gather (odd); arc_samples: points per arc of the scatter.
+        max_radius: reconstruct's tile radius; None sets it per level from the starting velocity.
+        margin: border pixels (full resolution) left out of the residual, where the target saw
+            outside the image; default max(2, min(H, W) // 10).
+        grid: nodes of `tiles`; tv_weight: the smoothness prior of `dense`; shutter_family and
+            fit_exposure: what `shutter` fits.
+        learning_rate: Adam's (default per model). jac: "fwd" or "bwd" Jacobians for LM and Dogleg
+            ("bwd" for ops with a custom_vjp). dtype: "float64" or "float32".
+        on_step: called as on_step(step, loss) after every solver step (e.g. a progress bar).
+
+    Returns:
+        A `FitResult`.
+    """
+    start_time = time.perf_counter()
+    checks.require_choice("model", model, _models.MODELS)
+    checks.require_choice("backend", backend, _backends.BACKENDS)
+    checks.require_choice("method", method, METHODS)
+    checks.require_choice("dtype", dtype, ("float64", "float32"))
+    checks.require_choice("jac", jac, ("fwd", "bwd"))
+    solver = _solvers.default_solver(backend, model) if solver is None else solver
+    checks.require_choice("solver", solver, _solvers.TORCH_SOLVERS if backend == "torch" else _solvers.JAX_SOLVERS)
+    samples = checks.require_odd_int("samples", samples)
+    arc_samples = checks.require_positive_int("arc_samples", arc_samples)
+    iterations = (60 if solver == "adam" else 20) if iterations is None else checks.require_positive_int("iterations", iterations)
+    levels = checks.require_positive_int("levels", levels)
+    window = get_shutter(shutter)
+
+    color = _as_image("sharp", sharp)
+    goal = _as_image("target", target)
+    checks.require_same_shape("target", goal.shape, "sharp", color.shape)
+    _, _, height, width = color.shape
+    if levels > _pyramid.max_levels(height, width):
+        raise ValueError(f"levels must be <= {_pyramid.max_levels(height, width)} for a {height} x {width} image (coarsest level >= 8 pixels), got {levels}")
+    z = np.ones((1, 1, height, width)) if depth is None else _as_image("depth", depth, channels=1)
+    checks.require_same_batch_and_size("sharp", color.shape, [("depth", z.shape)])
+    if not np.all(z > 0):
+        raise ValueError(checks.nonpositive_message("depth"))
+    margin = max(2, min(height, width) // 10) if margin is None else int(checks.require_nonnegative_number("margin", margin))
+    if 2 * margin >= min(height, width):
+        raise ValueError(f"margin must leave pixels to compare: < {min(height, width) // 2} for a {height} x {width} image, got {margin}")
+
+    fit_model = _models.build_model(model, grid=grid, tv_weight=tv_weight, shutter_family=shutter_family, fit_exposure=fit_exposure)
+    arrays: dict[str, np.ndarray | None] = {"color": color, "target": goal, "depth": z, "velocity": None, "ids": None, "mask": None, "background": None}
+    if "velocity" in fit_model.needs():
+        if velocity is None:
+            raise ValueError(f"model {model!r} fits the exposure or shutter of a known motion: pass velocity= (the half-spread at exposure 1)")
+        v = np.asarray(velocity, dtype=np.float64)
+        arrays["velocity"] = np.broadcast_to(v.reshape(1, 2, 1, 1), (1, 2, height, width)).copy() if v.size == 2 else _as_image("velocity", v, channels=2)
+    if "ids" in fit_model.needs():
+        if ids is None:
+            raise ValueError("model 'motion_ids' needs ids= (a (1, 1, H, W) integer ID map)")
+        id_map = np.asarray(ids)
+        checks.require_same_shape("ids", id_map.shape, "depth", z.shape)
+        if not np.issubdtype(id_map.dtype, np.integer) or id_map.min() < 0:
+            raise ValueError(f"ids must be non-negative integers, got dtype {id_map.dtype} and minimum {id_map.min()}")
+        arrays["ids"] = id_map
+    if model == "rotation":
+        arrays["mask"] = (z < z.max() - 1e-9 * z.max()).astype(np.float64) if mask is None else np.asarray(mask, dtype=np.float64)
+        if not arrays["mask"].any():
+            arrays["mask"] = np.ones_like(z)
+        checks.require_same_shape("mask", arrays["mask"].shape, "depth", z.shape)
+        if background is not None:
+            arrays["background"] = _as_image("background", background)
+
+    be = _backends.adapter(backend, dtype)
+    pyramid = _pyramid.pyramid(arrays, levels)
+    palette_size = int(arrays["ids"].max()) + 1 if arrays["ids"] is not None else 0
+
+    def context(level: int, radius: float) -> _models.Context:
+        a = pyramid[level]
+        h, w = a["color"].shape[2:]
+        extras = {"palette_size": palette_size, "depth_numpy": a["depth"], "mask_numpy": a["mask"]}
+        for name in ("velocity", "mask", "background"):
+            extras[name] = None if a[name] is None else be.array(a[name])
+        extras["ids"] = None if a["ids"] is None else be.ints(a["ids"])
+        options = {"method": method, "samples": samples, "arc_samples": arc_samples, "shutter": window, "max_radius": radius}
+        return _models.Context(be, be.array(a["color"]), be.array(a["depth"]), be.array(a["target"]), h, w, 0.5**level, options, extras)
+
+    # Start values at full resolution, then down to the coarsest level.
+    finest = context(0, 2.0)
+    params = fit_model.init(finest, init)
+    for level in range(1, levels):
+        h, w = pyramid[level]["color"].shape[2:]
+        params = fit_model.rescale(params, 0.5, h, w)
+
+    history: list[float] = []
+
+    def record(loss: float) -> None:
+        history.append(loss)
+        if on_step is not None:
+            on_step(len(history), loss)
+
+    learning_rate = fit_model.learning_rate if learning_rate is None else checks.require_positive_number("learning_rate", learning_rate)
+    for level in reversed(range(levels)):
+        probe = context(level, 2.0)
+        speed = float(np.max(np.hypot(*be.numpy(fit_model.velocity({k: be.array(v) for k, v in params.items()}, probe))[0])))
+        radius = max_radius if max_radius is not None else _auto_max_radius(speed, samples, max(probe.height, probe.width))
+        ctx = context(level, radius)
+        crop = int(round(margin * ctx.scale))
+        rows = slice(crop, ctx.height - crop)
+        cols = slice(crop, ctx.width - crop)
+        count = float(np.prod(pyramid[level]["target"][:, :, rows, cols].shape))
+        y0, spec = _flatten(params)
+
+        def residuals(y, ctx=ctx, spec=spec, rows=rows, cols=cols, count=count):
+            p = _unflatten(y, spec)
+            data = ((fit_model.render(p, ctx) - ctx.target)[:, :, rows, cols]).reshape(-1) / math.sqrt(count)
+            return be.concat([data, *fit_model.prior(p, ctx)])
+
+        if backend == "torch":
+            y = _solvers.torch_solve(be, residuals, y0, solver=solver, iterations=iterations, learning_rate=learning_rate, on_step=record)
+        else:
+            y = _solvers.jax_solve(be, residuals, y0, solver=solver, iterations=iterations, learning_rate=learning_rate, on_step=record, jac=jac, matrix_free=model == "dense")
+        params = {k: np.asarray(v, dtype=np.float64) for k, v in _unflatten(y, spec).items()}
+        if level > 0:
+            h, w = pyramid[level - 1]["color"].shape[2:]
+            params = fit_model.rescale(params, 2.0, h, w)
+        final = (ctx, residuals, y)
+
+    ctx, residuals, y = final
+    p_be = _unflatten(be.array(y), [(k, np.shape(v)) for k, v in params.items()])
+    blurred = be.numpy(fit_model.render(p_be, ctx))
+    loss = float(np.sum(be.numpy(residuals(be.array(y))) ** 2))
+    field_ = be.numpy(fit_model.velocity(p_be, ctx))
+    symmetric = _models.is_symmetric(window)
+    return FitResult(
+        model=model,
+        backend=backend,
+        solver=solver,
+        params=fit_model.report(params, symmetric and fit_model.sign_ambiguous),
+        loss=loss,
+        blurred=blurred,
+        history=history,
+        velocity=field_,
+        n_params=int(y.size),
+        levels=levels,
+        seconds=time.perf_counter() - start_time,
+        raw=params,
+        pixels=int(np.prod(goal.shape)),
+    )

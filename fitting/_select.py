@@ -1,0 +1,106 @@
+"""`select_model`: the simplest model that explains the target, tried from the simplest up."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from diffblur import checks
+from fitting._models import MODELS
+from fitting._recover import FitResult, recover
+
+#: Tried in this order among models of equal size; `dense` is left out unless asked for.
+DEFAULT_CANDIDATES = ("global", "rotation", "motion_ids", "camera", "tiles")
+
+
+@dataclass
+class Selection:
+    """choice: the model picked; reason: why, in words; table: per model tried, its parameter count,
+    loss, criterion and verdict; fits: the FitResult of every model tried."""
+
+    choice: str
+    reason: str
+    table: list[dict[str, Any]]
+    fits: dict[str, FitResult] = field(repr=False)
+
+
+def _size(model: str, palette_size: int, grid: tuple[int, int]) -> int:
+    return {"global": 2, "rotation": 3, "camera": 4, "motion_ids": 2 * palette_size, "tiles": 2 * grid[0] * grid[1]}.get(model, 10**9)
+
+
+def bic(result: FitResult) -> float:
+    """Bayesian information criterion of a fit with Gaussian residuals: n log(mse) + k log(n)."""
+    n = max(result.pixels, 1)
+    return n * math.log(max(result.loss, 1e-300)) + result.n_params * math.log(n)
+
+
+def select_model(
+    sharp: Any,
+    target: Any,
+    *,
+    depth: Any = None,
+    ids: Any = None,
+    candidates: tuple[str, ...] | None = None,
+    min_gain: float = 0.05,
+    patience: int = 2,
+    grid: tuple[int, int] = (3, 3),
+    **options: Any,
+) -> Selection:
+    """Fit candidate models from the fewest parameters up; keep a richer one only when it pays.
+
+    A richer model pays when it lowers the Bayesian information criterion (n log(mse) + k log(n),
+    n residuals, k parameters) and also lowers the loss by at least `min_gain` (5 %): the renderer's
+    own error is correlated across pixels, which the criterion assumes independent, so a few extra
+    parameters always shave a little off it. The search stops after `patience` richer models in a row
+    that do not pay. `motion_ids` is a candidate only with `ids`. Other keyword options go to
+    `recover` (backend, method, solver, iterations, levels, ...).
+
+    Returns a `Selection` (choice, reason, table, fits).
+    """
+    candidates = tuple(c for c in (DEFAULT_CANDIDATES if candidates is None else candidates) if c != "motion_ids" or ids is not None)
+    for name in candidates:
+        checks.require_choice("candidates", name, MODELS)
+        if name in ("exposure", "shutter"):
+            raise ValueError(f"candidates must be motion models that need no known motion, got {name!r}")
+    if not candidates:
+        raise ValueError("candidates must name at least one model")
+    patience = checks.require_positive_int("patience", patience)
+    min_gain = checks.require_in_interval("min_gain", min_gain, 0.0, 1.0)
+    palette_size = int(np.max(ids)) + 1 if ids is not None else 0
+    order = sorted(candidates, key=lambda m: (_size(m, palette_size, grid), candidates.index(m)))
+
+    fits: dict[str, FitResult] = {}
+    table: list[dict[str, Any]] = []
+    best: str | None = None
+    misses = 0
+    for name in order:
+        kwargs = dict(options)
+        if name == "motion_ids":
+            kwargs["ids"] = ids
+        if name == "tiles":
+            kwargs["grid"] = grid
+        fits[name] = fit = recover(sharp, target, model=name, depth=depth, **kwargs)
+        row = {"model": name, "n_params": fit.n_params, "loss": fit.loss, "bic": bic(fit)}
+        if best is None:
+            row["verdict"] = "baseline"
+            best = name
+        else:
+            gain = 1.0 - fit.loss / fits[best].loss
+            pays = row["bic"] < bic(fits[best]) and gain >= min_gain
+            row["verdict"] = f"{'pays' if pays else 'does not pay'}: loss {gain:+.1%} vs {best}, BIC {row['bic'] - bic(fits[best]):+.0f}"
+            if pays:
+                best, misses = name, 0
+            else:
+                misses += 1
+        table.append(row)
+        if misses >= patience:
+            break
+    chosen = fits[best]
+    others = [r for r in table if r["model"] != best]
+    reason = f"{best} ({chosen.n_params} parameters, loss {chosen.loss:.3g}): " + (
+        "; ".join(f"{r['model']} ({r['n_params']}) {r['verdict']}" for r in others) if others else "the only candidate"
+    )
+    return Selection(best, reason, table, fits)
