@@ -14,10 +14,12 @@ import numpy as np
 from diffblur import checks
 from diffblur._scatter_options import (
     DEFAULT_BACKGROUND_WEIGHT,
+    DEFAULT_FILL,
     DEFAULT_MAX_SAMPLES,
     DEFAULT_NORMALIZATION,
     DEFAULT_SHUTTER,
     DEFAULT_SOFT_Z_EXTENT,
+    FILLS,
     MID_PREV_TIME,
     length_times,
     point_count,
@@ -29,7 +31,7 @@ from diffblur._scatter_options import (
 from diffblur.conventions import DEPTH_CHANNELS
 from diffblur.shutters import ShutterWindow, get_shutter
 
-__all__ = ["bezier_control_points", "bezier_scatter"]
+__all__ = ["bezier_control_points", "bezier_scatter", "still_fill"]
 
 
 def _bernstein(degree: int, s: float) -> list[float]:
@@ -94,6 +96,57 @@ def _soft_in_front(z_destination: float, z_source: float, extent: float) -> floa
     return min(max(1.0 - (z_source - z_destination) / extent, 0.0), 1.0)
 
 
+def _upsampled(coarse: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Bilinear upsampling by 2 of a (C, h, w) image to (C, height, width): fine pixel i sits at
+    coarse coordinate (i + 1/2) / 2 - 1/2, between coarse pixels i // 2 and its neighbour on the side
+    of i (3/4 and 1/4), the border repeated."""
+    channels, h, w = coarse.shape
+    out = np.zeros((channels, height, width), dtype=coarse.dtype)
+    for i in range(height):
+        for j in range(width):
+            value = 0.0
+            for r, wr in ((i // 2, 0.75), (min(max(i // 2 + (1 if i % 2 else -1), 0), h - 1), 0.25)):
+                for c, wc in ((j // 2, 0.75), (min(max(j // 2 + (1 if j % 2 else -1), 0), w - 1), 0.25)):
+                    value = value + wr * wc * coarse[:, r, c]
+            out[:, i, j] = value
+    return out
+
+
+def still_fill(color: np.ndarray, still: np.ndarray) -> np.ndarray:
+    """fill="still": the colour behind each pixel estimated from the still pixels by push-pull.
+
+    color (B, C, H, W); still (B, 1, H, W) of 0 and 1. Pull: level 0 holds (still * color, still);
+    each next level sums 2 x 2 blocks of the previous one (an odd side padded with weight 0), down to
+    one pixel. Push: the one pixel's mean, then at each finer level, per pixel with summed weight w,
+    min(w, 1) * its mean + (1 - min(w, 1)) * the coarser estimate upsampled bilinearly. An image
+    without still pixels keeps its colour."""
+    out = np.empty_like(color)
+    for b in range(color.shape[0]):
+        levels = [(color[b] * still[b], still[b])]
+        while max(levels[-1][1].shape[1:]) > 1:
+            total, weight = levels[-1]
+            _, h, w = weight.shape
+            coarse_total = np.zeros((total.shape[0], (h + 1) // 2, (w + 1) // 2), dtype=color.dtype)
+            coarse_weight = np.zeros((1, (h + 1) // 2, (w + 1) // 2), dtype=color.dtype)
+            for i in range(h):
+                for j in range(w):
+                    coarse_total[:, i // 2, j // 2] += total[:, i, j]
+                    coarse_weight[:, i // 2, j // 2] += weight[:, i, j]
+            levels.append((coarse_total, coarse_weight))
+        total, weight = levels[-1]
+        if weight[0, 0, 0] == 0:
+            out[b] = color[b]
+            continue
+        estimate = total / weight
+        for total, weight in reversed(levels[:-1]):
+            up = _upsampled(estimate, *weight.shape[1:])
+            share = np.minimum(weight, 1.0)
+            mean = np.divide(total, weight, out=np.zeros_like(total), where=weight > 0)
+            estimate = share * mean + (1.0 - share) * up
+        out[b] = estimate
+    return out
+
+
 def bezier_scatter(
     color: np.ndarray,
     depth: np.ndarray,
@@ -108,6 +161,7 @@ def bezier_scatter(
     max_samples: int = DEFAULT_MAX_SAMPLES,
     shutter: str | ShutterWindow = DEFAULT_SHUTTER,
     normalization: str = DEFAULT_NORMALIZATION,
+    fill: str = DEFAULT_FILL,
     background: np.ndarray | None = None,
     background_weight: float = DEFAULT_BACKGROUND_WEIGHT,
     soft_z_extent: float | np.ndarray = DEFAULT_SOFT_Z_EXTENT,
@@ -121,8 +175,9 @@ def bezier_scatter(
         omega = bilinear(D) * softDepthCompare(depth[D], depth[S], soft_z_extent) * m_k * f,
 
     f = 1 ("coverage") or 2 |p_S'(t_k)| ("paper": weight per pixel of path length, 1 for the box
-    shutter), adding omega * color[S] to A[D] and omega to alpha[D]. Then, with fill = background where
-    the pixel moves and `background` is given, else color:
+    shutter), adding omega * color[S] to A[D] and omega to alpha[D]. Then, with fill = color where the
+    pixel is still, and where it moves `background` if given, else `still_fill` of the still pixels
+    (fill="still") or color (fill="color"):
 
         coverage: (A + max(1 - alpha, 0) fill) / max(alpha, 1)
         paper:    (A + w_b fill) / (alpha + w_b)
@@ -140,6 +195,7 @@ def bezier_scatter(
     )
     batch, channels, height, width = checks.require_image("color", color.shape)
     checks.require_image("depth", depth.shape, channels=DEPTH_CHANNELS)
+    fill = checks.require_choice("fill", fill, FILLS)
     extent = float(soft_z_extent)
     window = get_shutter(shutter)
 
@@ -194,7 +250,9 @@ def bezier_scatter(
                         accumulated[b, :, row, column] += omega * color[b, :, i, j]
                         alpha[b, 0, row, column] += omega
 
-    fill = color if background is None else np.where(moving_pixels, background, color)
+    if background is None:
+        background = color if fill == "color" else still_fill(color, (~moving_pixels).astype(color.dtype))
+    fill = np.where(moving_pixels, background, color)
     if normalization == "coverage":
         uncovered = np.maximum(1.0 - alpha, 0.0)
         return (accumulated + uncovered * fill) / np.maximum(alpha, 1.0)

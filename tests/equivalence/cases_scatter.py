@@ -1,10 +1,11 @@
 """Equivalence cases of the Bezier scatter (seed 003); `cases.CASES` includes them.
 
-Five cases cover degrees 1, 2 and 3, the arc, both normalisations, the background, a shutter shape
-parameter and the soft depth extent, with small images (6 x 7) and 5 points per curve so that the
+Six cases cover degrees 1, 2 and 3, the arc, both normalisations, both fills and the background, a
+shutter shape parameter and the soft depth extent, with small images (6 x 7) and 5 points per curve so that the
 full-Jacobian gradcheck and the compilations stay cheap.
 Offsets are random and never exactly 0 (a still pixel is skipped, a kink the finite differences of
-the harness would straddle; the extremes tests cover it).
+the harness would straddle; the extremes tests cover it), except in the still-fill case, which has
+still pixels and differentiates only colour and depth.
 """
 
 from __future__ import annotations
@@ -29,6 +30,14 @@ def _scene(rng, *, spread=1.5, batch=1):
         "offset_prev": rng.normal(size=(batch, 2, height, width)) * spread,
         "offset_next": rng.normal(size=(batch, 2, height, width)) * spread,
     }
+
+
+def _with_still_pixels(rng):
+    inputs = _scene(rng)
+    still = rng.random((1, 1, *SHAPE[2:])) < 0.4
+    for name in ("offset_prev", "offset_next"):
+        inputs[name] = np.where(still, 0.0, inputs[name])
+    return inputs
 
 
 def _cubic(rng):
@@ -92,7 +101,8 @@ _FIELDS = ("color", "depth", "offset_prev", "offset_next")
 
 CASES = [
     _case("bezier_scatter_quadratic_batch", lambda rng: _scene(rng, batch=2), _FIELDS),
-    _case("bezier_scatter_linear_paper", _scene, _FIELDS, degree=1, normalization="paper", background_weight=2.0, shutter="trapezoid"),
+    _case("bezier_scatter_linear_paper", _scene, _FIELDS, degree=1, normalization="paper", background_weight=2.0, shutter="trapezoid", fill="color"),
+    _case("bezier_scatter_still_fill", _with_still_pixels, ("color", "depth")),
     _case("bezier_scatter_cubic", _cubic, (*_FIELDS, "offset_mid_prev"), degree=3, shutter="tent"),
     _case(
         "bezier_scatter_arc_background",
