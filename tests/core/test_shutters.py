@@ -276,3 +276,19 @@ def test_erf_series_matches_math_erf():
     x = np.concatenate([np.linspace(0, 7, 71), [1e-8, 5.999, 6.0, 30.0]])
     got = shutters._erf_series(torch.tensor(x, dtype=torch.float64), torch).numpy()
     np.testing.assert_allclose(got, [math.erf(v) for v in x], rtol=2e-15, atol=1e-16)
+
+
+def test_erf_uses_each_frameworks_own_and_agrees_with_math_erf():
+    """Torch tensors and JAX arrays take the framework's erf (one op, with its derivative
+    2/sqrt(pi) exp(-x^2)); the values match math.erf on both signs."""
+    x = np.concatenate([np.linspace(-7, 7, 57), [1e-8, -1e-8]])
+    expected = [math.erf(v) for v in x]
+    xt = torch.tensor(x, dtype=torch.float64, requires_grad=True)
+    got = shutters._erf(xt, torch)
+    assert got.grad_fn is not None and "Erf" in type(got.grad_fn).__name__
+    np.testing.assert_allclose(got.detach().numpy(), expected, rtol=1e-15, atol=1e-16)
+    (grad,) = torch.autograd.grad(got.sum(), xt)
+    np.testing.assert_allclose(grad.numpy(), 2 / math.sqrt(math.pi) * np.exp(-x * x), rtol=1e-14)
+    jaxpr = str(jax.make_jaxpr(lambda v: shutters._erf(v, jnp))(jnp.asarray(x)))
+    assert "erf" in jaxpr and jaxpr.count("mul") < 10, jaxpr
+    np.testing.assert_allclose(np.asarray(shutters._erf(jnp.asarray(x), jnp)), expected, rtol=1e-15, atol=1e-16)
