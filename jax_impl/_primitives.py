@@ -48,7 +48,7 @@ def _floor_extent(extent: float | Array) -> float | Array:
     The output is a step there either way."""
     if isinstance(extent, float):
         return extent
-    floor = jnp.finfo(extent.dtype).tiny ** 0.5
+    floor = float(jnp.finfo(extent.dtype).tiny) ** 0.5  # a Python float: no promotion of bfloat16
     return jnp.where(extent < floor, floor, extent).astype(extent.dtype)
 
 
@@ -62,18 +62,36 @@ def _soft_depth_compare(z_a: Array, z_b: Array, extent: float | Array) -> Array:
     return jnp.where(behind < 0, 1.0, jnp.where(behind > extent, 0.0, ramp)).astype(z_a.dtype)
 
 
+def _widen(x: Array) -> Array:
+    """float32 for the half types. The classifiers' ratio distance / speed reaches 1e7 (1e4 px over
+    the 1e-3 px floor), past float16's 65504: the clamp hides it forward, but the backward's
+    0 * inf would be NaN."""
+    return x.astype(jnp.float32) if x.dtype in (jnp.float16, jnp.bfloat16) else x
+
+
 def _cone(distance: Array, speed: Array) -> Array:
-    return _clamp01(1.0 - distance / _floor_speed(speed))
+    dtype = distance.dtype
+    distance, speed = _widen(distance), _widen(speed)
+    return _clamp01(1.0 - distance / _floor_speed(speed)).astype(dtype)
 
 
 def _cylinder(distance: Array, speed: Array) -> Array:
-    speed = _floor_speed(speed)
+    dtype = distance.dtype
+    distance, speed = _widen(distance), _floor_speed(_widen(speed))
     t = _clamp01((distance - CYLINDER_INNER * speed) / ((CYLINDER_OUTER - CYLINDER_INNER) * speed))
-    return 1.0 - t * t * (3.0 - 2.0 * t)
+    return (1.0 - t * t * (3.0 - 2.0 * t)).astype(dtype)
+
+
+def _squared_length(vector: Array, axis: int) -> Array:
+    """Sum of squares along `axis` (kept), in float32 for the half types: in float16 a vector
+    longer than 256 px would square to infinity."""
+    if vector.dtype in (jnp.float16, jnp.bfloat16):
+        vector = vector.astype(jnp.float32)
+    return jnp.sum(vector * vector, axis=axis, keepdims=True)
 
 
 def _safe_length(vector: Array, axis: int = 1) -> Array:
-    squared = jnp.sum(vector * vector, axis=axis, keepdims=True)
+    squared = _squared_length(vector, axis)
     # Double where: sqrt never sees 0, so its infinite derivative never meets the zero cotangent.
     positive = squared > 0
     return jnp.where(positive, jnp.sqrt(jnp.where(positive, squared, 1.0)), 0.0).astype(vector.dtype)
@@ -209,7 +227,7 @@ def tile_max(velocity: Float[Array, "b 2 h w"], tile: int) -> Float[Array, "b 2 
     batch, _, height, width = velocity.shape
     tiles_y, tiles_x = -(-height // tile), -(-width // tile)
     pad_y, pad_x = tiles_y * tile - height, tiles_x * tile - width
-    squared = jnp.sum(velocity * velocity, axis=1)
+    squared = _squared_length(velocity, 1)[:, 0]
     # Padding gets squared length -1 so it never wins, not even against a zero vector.
     squared = jnp.pad(squared, ((0, 0), (0, pad_y), (0, pad_x)), constant_values=-1.0)
     padded = jnp.pad(velocity, ((0, 0), (0, 0), (0, pad_y), (0, pad_x)))
@@ -232,7 +250,7 @@ def neighbor_max(tile_velocity: Float[Array, "b 2 th tw"]) -> Float[Array, "b 2 
     """
     tile_velocity = _checks.image("tile_velocity", tile_velocity, channels=VECTOR_CHANNELS)
     _, _, tiles_y, tiles_x = tile_velocity.shape
-    squared = jnp.pad(jnp.sum(tile_velocity * tile_velocity, axis=1), ((0, 0), (1, 1), (1, 1)), constant_values=-1.0)
+    squared = jnp.pad(_squared_length(tile_velocity, 1)[:, 0], ((0, 0), (1, 1), (1, 1)), constant_values=-1.0)
     padded = jnp.pad(tile_velocity, ((0, 0), (0, 0), (1, 1), (1, 1)))
     offsets = [(dy, dx) for dy in range(3) for dx in range(3)]
     candidates = jnp.stack([padded[:, :, dy : dy + tiles_y, dx : dx + tiles_x] for dy, dx in offsets], axis=2)

@@ -174,7 +174,12 @@ def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, s
     total = weight * color
     if samples > 1:
         (weight, total), _ = jax.lax.scan(accumulate, (weight, total), taps)
-    out = total / weight
+    if weight.dtype in (jnp.float16, jnp.bfloat16):
+        # float32 for the half types: the backward divides by weight**2, and a weight of 1 / |V|
+        # (1e-4 at 1e4 px) squares to 0 in float16, an infinite gradient.
+        out = (total.astype(jnp.float32) / weight.astype(jnp.float32)).astype(color.dtype)
+    else:
+        out = total / weight
     if early_out:
         out = jnp.where(speed_n <= EPSILON + 0.5, color, out)
     return out.astype(color.dtype)

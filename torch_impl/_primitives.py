@@ -67,21 +67,39 @@ def _soft_depth_compare(z_a: Tensor, z_b: Tensor, extent: float | Tensor) -> Ten
     return torch.where(behind < 0, 1.0, torch.where(behind > extent, 0.0, ramp))
 
 
+def _widen(x: Tensor) -> Tensor:
+    """float32 for the half types. The classifiers' ratio distance / speed reaches 1e7 (1e4 px over
+    the 1e-3 px floor), past float16's 65504: the clamp hides it forward, but the backward's
+    0 * inf would be NaN."""
+    return x.float() if x.dtype in (torch.float16, torch.bfloat16) else x
+
+
 def _cone(distance: Tensor, speed: Tensor) -> Tensor:
-    return _clamp01(1.0 - distance / _floor_speed(speed))
+    dtype = distance.dtype
+    distance, speed = _widen(distance), _widen(speed)
+    return _clamp01(1.0 - distance / _floor_speed(speed)).to(dtype)
 
 
 def _cylinder(distance: Tensor, speed: Tensor) -> Tensor:
-    speed = _floor_speed(speed)
+    dtype = distance.dtype
+    distance, speed = _widen(distance), _floor_speed(_widen(speed))
     t = _clamp01((distance - CYLINDER_INNER * speed) / ((CYLINDER_OUTER - CYLINDER_INNER) * speed))
-    return 1.0 - t * t * (3.0 - 2.0 * t)
+    return (1.0 - t * t * (3.0 - 2.0 * t)).to(dtype)
+
+
+def _squared_length(vector: Tensor, axis: int) -> Tensor:
+    """Sum of squares along `axis` (kept), in float32 for the half types: in float16 a vector
+    longer than 256 px would square to infinity."""
+    if vector.dtype in (torch.float16, torch.bfloat16):
+        vector = vector.float()
+    return torch.sum(vector * vector, dim=axis, keepdim=True)
 
 
 def _safe_length(vector: Tensor, axis: int = 1) -> Tensor:
-    squared = torch.sum(vector * vector, dim=axis, keepdim=True)
+    squared = _squared_length(vector, axis)
     # Double where: sqrt never sees 0, so its infinite derivative never meets the zero cotangent.
     positive = squared > 0
-    return torch.where(positive, torch.sqrt(torch.where(positive, squared, 1.0)), 0.0)
+    return torch.where(positive, torch.sqrt(torch.where(positive, squared, 1.0)), 0.0).to(vector.dtype)
 
 
 def soft_depth_compare(z_a: Float[Tensor, "*shape"], z_b: Float[Tensor, "*shape"], extent: float | Tensor) -> Float[Tensor, "*shape"]:
@@ -220,7 +238,7 @@ def tile_max(velocity: Float[Tensor, "b 2 h w"], tile: int) -> Float[Tensor, "b 
     batch, _, height, width = velocity.shape
     tiles_y, tiles_x = -(-height // tile), -(-width // tile)
     pad_y, pad_x = tiles_y * tile - height, tiles_x * tile - width
-    squared = torch.sum(velocity * velocity, dim=1)
+    squared = _squared_length(velocity, 1)[:, 0]
     # Padding gets squared length -1 so it never wins, not even against a zero vector.
     squared = F.pad(squared, (0, pad_x, 0, pad_y), value=-1.0)
     padded = F.pad(velocity, (0, pad_x, 0, pad_y))
@@ -243,7 +261,7 @@ def neighbor_max(tile_velocity: Float[Tensor, "b 2 th tw"]) -> Float[Tensor, "b 
     """
     _checks.image("tile_velocity", tile_velocity, channels=VECTOR_CHANNELS)
     _, _, tiles_y, tiles_x = tile_velocity.shape
-    squared = F.pad(torch.sum(tile_velocity * tile_velocity, dim=1), (1, 1, 1, 1), value=-1.0)
+    squared = F.pad(_squared_length(tile_velocity, 1)[:, 0], (1, 1, 1, 1), value=-1.0)
     padded = F.pad(tile_velocity, (1, 1, 1, 1))
     offsets = [(dy, dx) for dy in range(3) for dx in range(3)]
     candidates = torch.stack([padded[:, :, dy : dy + tiles_y, dx : dx + tiles_x] for dy, dx in offsets], dim=2)

@@ -172,7 +172,12 @@ def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, s
             alpha, contribution = tap(k, *args)
         weight = weight + alpha
         total = total + contribution
-    out = total / weight
+    if weight.dtype in (torch.float16, torch.bfloat16):
+        # float32 for the half types: the backward divides by weight**2, and a weight of 1 / |V|
+        # (1e-4 at 1e4 px) squares to 0 in float16, an infinite gradient.
+        out = (total.float() / weight.float()).to(color.dtype)
+    else:
+        out = total / weight
     if early_out:
         out = torch.where(speed_n <= EPSILON + 0.5, color, out)
     return out
