@@ -54,6 +54,13 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_fit(commands) -> None:
+    """`diffblur fit` (fitting/cli.py); its module imports no framework until a fit runs."""
+    from fitting.cli import add_fit_parser
+
+    add_fit_parser(commands)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from diffblur.scenes import PRESETS
 
@@ -68,6 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
     gallery.add_argument("--out", required=True, help="folder for preset_gallery.png")
     gallery.add_argument("--size", type=int, default=128, help="image height and width in pixels (default: 128)")
     gallery.set_defaults(run=_gallery)
+    _add_fit(commands)
     bench = commands.add_parser("bench", help="time every method and setting in both backends against ground truth: BENCHMARKS.md, docs/benchmarks.json, docs/pareto.png")
     bench.add_argument("--out", default=".", help="folder for BENCHMARKS.md and docs/ (default: .)")
     bench.add_argument("--quick", action="store_true", help="a few settings on two scenes, one repeat, no 1280x720 targets pass")

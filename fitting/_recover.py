@@ -52,6 +52,21 @@ def _as_image(name: str, x: Any, channels: int | None = None) -> np.ndarray:
     return x
 
 
+def _away_from_boundaries(ids: np.ndarray, distance: float) -> np.ndarray:
+    """(1, 1, H, W) 1 where no pixel within `distance` (Chebyshev) has another ID, else 0."""
+    weight = np.ones(ids.shape, dtype=np.float64)
+    reach = int(math.ceil(distance))
+    if reach == 0:
+        return weight
+    padded = np.pad(ids[0, 0], reach, mode="edge")
+    h, w = ids.shape[2:]
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            shifted = padded[reach + dy : reach + dy + h, reach + dx : reach + dx + w]
+            weight[0, 0][shifted != ids[0, 0]] = 0.0
+    return weight
+
+
 def _flatten(p: dict[str, np.ndarray]) -> tuple[np.ndarray, list[tuple[str, tuple[int, ...]]]]:
     spec = [(k, np.shape(v)) for k, v in p.items()]
     return np.concatenate([np.ravel(v) for v in p.values()]).astype(np.float64), spec
@@ -67,7 +82,10 @@ def _unflatten(y: Any, spec: list[tuple[str, tuple[int, ...]]]) -> dict[str, Any
 
 
 def _auto_max_radius(speed: float, samples: int, size: int) -> float:
-    return float(min(max(2.0, math.ceil(speed * (samples + 1) / samples * 1.25) + 1.0), max(2.0, size / 2)))
+    """reconstruct's tile radius for a level: room for the start's speed to double (a pixel gathers
+    only from neighbouring tiles, so a radius below the fitted speed would cut the blur off), at
+    least 4 px, at most half the image."""
+    return float(min(max(4.0, math.ceil(2.0 * speed * (samples + 1) / samples) + 2.0), max(2.0, size / 2)))
 
 
 def recover(
@@ -89,6 +107,7 @@ def recover(
     shutter: Any = "box",
     samples: int = 9,
     arc_samples: int = 16,
+    boundary: int = 0,
     max_radius: float | None = None,
     margin: int | None = None,
     grid: tuple[int, int] = (3, 3),
@@ -132,6 +151,9 @@ def recover(
         max_radius: reconstruct's tile radius; None sets it per level from the starting velocity.
         margin: border pixels (full resolution) left out of the residual, where the target saw
             outside the image; default max(2, min(H, W) // 10).
+        boundary: with `ids`, also leave out pixels within this many pixels of a change of ID:
+            there objects occlude each other over the exposure, which the filters only approximate,
+            and that error would bias every velocity it touches (default 0: keep them).
         grid: nodes of `tiles`; tv_weight: the smoothness prior of `dense`; shutter_family and
             fit_exposure: what `shutter` fits.
         learning_rate: Adam's (default per model). jac: "fwd" or "bwd" Jacobians for LM and Dogleg
@@ -170,7 +192,7 @@ def recover(
         raise ValueError(f"margin must leave pixels to compare: < {min(height, width) // 2} for a {height} x {width} image, got {margin}")
 
     fit_model = _models.build_model(model, grid=grid, tv_weight=tv_weight, shutter_family=shutter_family, fit_exposure=fit_exposure)
-    arrays: dict[str, np.ndarray | None] = {"color": color, "target": goal, "depth": z, "velocity": None, "ids": None, "mask": None, "background": None}
+    arrays: dict[str, np.ndarray | None] = {"color": color, "target": goal, "depth": z, "velocity": None, "ids": None, "mask": None, "background": None, "weight": np.ones_like(z)}
     if "velocity" in fit_model.needs():
         if velocity is None:
             raise ValueError(f"model {model!r} fits the exposure or shutter of a known motion: pass velocity= (the half-spread at exposure 1)")
@@ -184,6 +206,7 @@ def recover(
         if not np.issubdtype(id_map.dtype, np.integer) or id_map.min() < 0:
             raise ValueError(f"ids must be non-negative integers, got dtype {id_map.dtype} and minimum {id_map.min()}")
         arrays["ids"] = id_map
+        arrays["weight"] = _away_from_boundaries(id_map, checks.require_nonnegative_number("boundary", boundary))
     if model == "rotation":
         arrays["mask"] = (z < z.max() - 1e-9 * z.max()).astype(np.float64) if mask is None else np.asarray(mask, dtype=np.float64)
         if not arrays["mask"].any():
@@ -200,7 +223,7 @@ def recover(
         a = pyramid[level]
         h, w = a["color"].shape[2:]
         extras = {"palette_size": palette_size, "depth_numpy": a["depth"], "mask_numpy": a["mask"]}
-        for name in ("velocity", "mask", "background"):
+        for name in ("velocity", "mask", "background", "weight"):
             extras[name] = None if a[name] is None else be.array(a[name])
         extras["ids"] = None if a["ids"] is None else be.ints(a["ids"])
         options = {"method": method, "samples": samples, "arc_samples": arc_samples, "shutter": window, "max_radius": radius}
@@ -221,38 +244,48 @@ def recover(
             on_step(len(history), loss)
 
     learning_rate = fit_model.learning_rate if learning_rate is None else checks.require_positive_number("learning_rate", learning_rate)
-    for level in reversed(range(levels)):
-        probe = context(level, 2.0)
-        speed = float(np.max(np.hypot(*be.numpy(fit_model.velocity({k: be.array(v) for k, v in params.items()}, probe))[0])))
-        radius = max_radius if max_radius is not None else _auto_max_radius(speed, samples, max(probe.height, probe.width))
-        ctx = context(level, radius)
-        crop = int(round(margin * ctx.scale))
-        rows = slice(crop, ctx.height - crop)
-        cols = slice(crop, ctx.width - crop)
-        count = float(np.prod(pyramid[level]["target"][:, :, rows, cols].shape))
-        y0, spec = _flatten(params)
 
-        def residuals(y, ctx=ctx, spec=spec, rows=rows, cols=cols, count=count):
-            p = _unflatten(y, spec)
-            data = ((fit_model.render(p, ctx) - ctx.target)[:, :, rows, cols]).reshape(-1) / math.sqrt(count)
-            return be.concat([data, *fit_model.prior(p, ctx)])
+    def fit_from(params: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], Any, Callable, np.ndarray, float]:
+        """Coarse to fine from `params` (coarsest level's); the finest level's results."""
+        for level in reversed(range(levels)):
+            probe = context(level, 2.0)
+            speed = float(np.max(np.hypot(*be.numpy(fit_model.velocity({k: be.array(v) for k, v in params.items()}, probe))[0])))
+            radius = max_radius if max_radius is not None else _auto_max_radius(speed, samples, max(probe.height, probe.width))
+            ctx = context(level, radius)
+            crop = int(round(margin * ctx.scale))
+            rows = slice(crop, ctx.height - crop)
+            cols = slice(crop, ctx.width - crop)
+            count = float(np.prod(pyramid[level]["target"][:, :, rows, cols].shape))
+            y0, spec = _flatten(params)
 
-        if backend == "torch":
-            y = _solvers.torch_solve(be, residuals, y0, solver=solver, iterations=iterations, learning_rate=learning_rate, on_step=record)
-        else:
-            y = _solvers.jax_solve(be, residuals, y0, solver=solver, iterations=iterations, learning_rate=learning_rate, on_step=record, jac=jac, matrix_free=model == "dense")
-        params = {k: np.asarray(v, dtype=np.float64) for k, v in _unflatten(y, spec).items()}
-        if level > 0:
-            h, w = pyramid[level - 1]["color"].shape[2:]
-            params = fit_model.rescale(params, 2.0, h, w)
-        final = (ctx, residuals, y)
+            def residuals(y, ctx=ctx, spec=spec, rows=rows, cols=cols, count=count):
+                p = _unflatten(y, spec)
+                data = ((fit_model.render(p, ctx) - ctx.target) * ctx.extras["weight"])[:, :, rows, cols].reshape(-1) / math.sqrt(count)
+                return be.concat([data, *fit_model.prior(p, ctx)])
 
-    ctx, residuals, y = final
+            if backend == "torch":
+                y = _solvers.torch_solve(be, residuals, y0, solver=solver, iterations=iterations, learning_rate=learning_rate, on_step=record)
+            else:
+                y = _solvers.jax_solve(be, residuals, y0, solver=solver, iterations=iterations, learning_rate=learning_rate, on_step=record, jac=jac, matrix_free=model == "dense")
+            params = {k: np.asarray(v, dtype=np.float64) for k, v in _unflatten(y, spec).items()}
+            if level > 0:
+                h, w = pyramid[level - 1]["color"].shape[2:]
+                params = fit_model.rescale(params, 2.0, h, w)
+        loss = float(np.sum(be.numpy(residuals(be.array(y))) ** 2))
+        return params, ctx, residuals, y, loss
+
+    symmetric = _models.is_symmetric(window)
+    best = fit_from(params)
+    if not symmetric and model == "global":
+        # An asymmetric shutter tells +v from -v, but each is a local minimum of the other's basin:
+        # start from both signs and keep the better fit.
+        mirrored = fit_from({"velocity": -params["velocity"]})
+        if mirrored[4] < best[4]:
+            best = mirrored
+    params, ctx, residuals, y, loss = best
     p_be = _unflatten(be.array(y), [(k, np.shape(v)) for k, v in params.items()])
     blurred = be.numpy(fit_model.render(p_be, ctx))
-    loss = float(np.sum(be.numpy(residuals(be.array(y))) ** 2))
     field_ = be.numpy(fit_model.velocity(p_be, ctx))
-    symmetric = _models.is_symmetric(window)
     return FitResult(
         model=model,
         backend=backend,
