@@ -30,8 +30,9 @@ OPTIONS = [
     {"max_samples": 3},
     {"shutter": "box"},
     {"shutter": Tukey(0.4)},
+    {"fill": "color"},
     {"normalization": "paper"},
-    {"normalization": "paper", "background_weight": 2.0},
+    {"normalization": "paper", "background_weight": 2.0, "fill": "color"},
     {"soft_z_extent": 0.05},
 ]
 
