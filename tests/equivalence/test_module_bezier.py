@@ -14,8 +14,10 @@ RNG = np.random.default_rng(23)
 SHAPE = (2, 3, 10, 11)
 COLOR = RNG.random(SHAPE)
 DEPTH = RNG.uniform(1.0, 1.3, size=(2, 1, 10, 11))
-VELOCITY = RNG.normal(size=(2, 2, 10, 11)) * 1.5
-PREV, NEXT, MID = (RNG.normal(size=(2, 2, 10, 11)) * 1.5 for _ in range(3))
+#: A third of the pixels still, so that the default fill ("still") has pixels to estimate from.
+STILL = RNG.random((2, 1, 10, 11)) < 0.35
+VELOCITY = np.where(STILL, 0.0, RNG.normal(size=(2, 2, 10, 11)) * 1.5)
+PREV, NEXT, MID = (np.where(STILL, 0.0, RNG.normal(size=(2, 2, 10, 11)) * 1.5) for _ in range(3))
 CENTER = np.broadcast_to(np.array([4.0, 6.0]).reshape(1, 2, 1, 1), (2, 2, 10, 11)).copy()
 ANGLE = RNG.normal(size=(2, 1, 10, 11)) * 0.3
 BACKGROUND = RNG.random(SHAPE)
