@@ -1,0 +1,41 @@
+"""The notebooks run, top to bottom, and print what their text says (each also asserts inside)."""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import pytest
+
+NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
+
+#: Per notebook, patterns its printed output must contain.
+EXPECTED_OUTPUT = {
+    "quickstart.ipynb": [r"max \|torch - jax\| = \d\.\de-0[5-9]", r"d loss / d exposure at 0\.5: torch -"],
+    "extremes.ipynb": [r"box:  loss\(\+4\) = 0\.00e\+00", r"local minima, prefiltered:\s+\[20\.\]"],
+}
+
+
+def test_every_notebook_is_executed_here():
+    assert sorted(p.name for p in NOTEBOOKS.glob("*.ipynb")) == sorted(EXPECTED_OUTPUT)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(EXPECTED_OUTPUT))
+def test_notebook_runs_and_prints_what_it_claims(name):
+    import nbclient
+    import nbformat
+
+    notebook = nbformat.read(NOTEBOOKS / name, as_version=4)
+    # The kernel shows figures inline, as for a user (the suite's conftest sets Agg for itself).
+    env = {key: value for key, value in os.environ.items() if key != "MPLBACKEND"}
+    client = nbclient.NotebookClient(notebook, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(NOTEBOOKS)}})
+    client.execute(env=env)
+    printed = "".join(
+        output.get("text", "") for cell in notebook.cells if cell.cell_type == "code" for output in cell.outputs if output.get("name") == "stdout"
+    )
+    figures = sum(1 for cell in notebook.cells if cell.cell_type == "code" for output in cell.outputs if "image/png" in output.get("data", {}))
+    assert figures >= 1, "every notebook shows at least one picture"
+    for pattern in EXPECTED_OUTPUT[name]:
+        assert re.search(pattern, printed), f"{name} did not print {pattern!r}; it printed:\n{printed}"
