@@ -23,7 +23,7 @@ class TorchAdapter:
         self.dtype = getattr(torch, dtype)
 
     def array(self, x: Any) -> Any:
-        return self.torch.as_tensor(np.asarray(x, dtype=np.float64), dtype=self.dtype)
+        return self.torch.tensor(np.array(x, dtype=np.float64), dtype=self.dtype)
 
     def ints(self, x: Any) -> Any:
         return self.torch.as_tensor(np.asarray(x), dtype=self.torch.int64)

@@ -128,8 +128,8 @@ def recover(
         depth: (1, 1, H, W) positive depth (reconstruct's depth test, the camera's parallax, the
             scatter's depth test); None for a flat scene (depth 1).
         backend: "torch" or "jax". solver: torch "adam" (default) or "lbfgs"; JAX "lm"
-            (Levenberg-Marquardt, default; matrix-free CG for `dense`), "dogleg", "bfgs", "lbfgs" (the
-            default for `dense`) or "adam" (optax through optimistix).
+            (Levenberg-Marquardt; matrix-free CG for `dense`), "dogleg" (default), "bfgs", "lbfgs"
+            (the default for `dense`) or "adam" (optax through optimistix).
         method: the op the blur goes through, "reconstruct" (seed 000) or "gather" (seed 001);
             `rotation` always uses the arc scatter (seed 003). Seed 000's taps span S / (S + 1) of the
             exposure, so the reconstruct path scales the velocity by (S + 1) / S: the parameters are
@@ -151,7 +151,7 @@ def recover(
         max_radius: reconstruct's tile radius; None sets it per level from the starting velocity.
         margin: border pixels (full resolution) left out of the residual, where the target saw
             outside the image; default max(2, min(H, W) // 10).
-        boundary: with `ids`, also leave out pixels within this many pixels of a change of ID:
+        boundary: with `ids` (for any model, so that models compare on the same pixels), also leave out pixels within this many pixels of a change of ID:
             there objects occlude each other over the exposure, which the filters only approximate,
             and that error would bias every velocity it touches (default 0: keep them).
         grid: nodes of `tiles`; tv_weight: the smoothness prior of `dense`; shutter_family and
@@ -198,9 +198,9 @@ def recover(
             raise ValueError(f"model {model!r} fits the exposure or shutter of a known motion: pass velocity= (the half-spread at exposure 1)")
         v = np.asarray(velocity, dtype=np.float64)
         arrays["velocity"] = np.broadcast_to(v.reshape(1, 2, 1, 1), (1, 2, height, width)).copy() if v.size == 2 else _as_image("velocity", v, channels=2)
-    if "ids" in fit_model.needs():
-        if ids is None:
-            raise ValueError("model 'motion_ids' needs ids= (a (1, 1, H, W) integer ID map)")
+    if "ids" in fit_model.needs() and ids is None:
+        raise ValueError("model 'motion_ids' needs ids= (a (1, 1, H, W) integer ID map)")
+    if ids is not None:  # any model: the boundary band must leave out the same pixels for all
         id_map = np.asarray(ids)
         checks.require_same_shape("ids", id_map.shape, "depth", z.shape)
         if not np.issubdtype(id_map.dtype, np.integer) or id_map.min() < 0:

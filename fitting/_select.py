@@ -45,6 +45,7 @@ def select_model(
     ids: Any = None,
     candidates: tuple[str, ...] | None = None,
     min_gain: float = 0.05,
+    floor: float = 1e-5,
     patience: int = 2,
     grid: tuple[int, int] = (3, 3),
     **options: Any,
@@ -54,7 +55,9 @@ def select_model(
     A richer model pays when it lowers the Bayesian information criterion (n log(mse) + k log(n),
     n residuals, k parameters) and also lowers the loss by at least `min_gain` (5 %): the renderer's
     own error is correlated across pixels, which the criterion assumes independent, so a few extra
-    parameters always shave a little off it. The search stops after `patience` richer models in a row
+    parameters always shave a little off it. Losses below `floor` (a mean squared error of 1e-5,
+    about the renderers' own error on a translation) count as equal: there a gain is the solvers'
+    convergence, not the model. The search stops after `patience` richer models in a row
     that do not pay. `motion_ids` is a candidate only with `ids`. Other keyword options go to
     `recover` (backend, method, solver, iterations, levels, ...).
 
@@ -69,6 +72,7 @@ def select_model(
         raise ValueError("candidates must name at least one model")
     patience = checks.require_positive_int("patience", patience)
     min_gain = checks.require_in_interval("min_gain", min_gain, 0.0, 1.0)
+    floor = checks.require_nonnegative_number("floor", floor)
     palette_size = int(np.max(ids)) + 1 if ids is not None else 0
     order = sorted(candidates, key=lambda m: (_size(m, palette_size, grid), candidates.index(m)))
 
@@ -77,9 +81,7 @@ def select_model(
     best: str | None = None
     misses = 0
     for name in order:
-        kwargs = dict(options)
-        if name == "motion_ids":
-            kwargs["ids"] = ids
+        kwargs = dict(options, ids=ids)
         if name == "tiles":
             kwargs["grid"] = grid
         fits[name] = fit = recover(sharp, target, model=name, depth=depth, **kwargs)
@@ -88,7 +90,7 @@ def select_model(
             row["verdict"] = "baseline"
             best = name
         else:
-            gain = 1.0 - fit.loss / fits[best].loss
+            gain = 1.0 - max(fit.loss, floor) / max(fits[best].loss, floor)
             pays = row["bic"] < bic(fits[best]) and gain >= min_gain
             row["verdict"] = f"{'pays' if pays else 'does not pay'}: loss {gain:+.1%} vs {best}, BIC {row['bic'] - bic(fits[best]):+.0f}"
             if pays:
