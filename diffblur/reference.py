@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from diffblur import checks
+from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED, adaptive_classes, select_by_tile, still_speed, tile_sample_counts
 from diffblur.conventions import (
     CYLINDER_INNER,
     CYLINDER_OUTER,
@@ -223,6 +224,7 @@ def gather_blur(
     samples: int = DEFAULT_SAMPLES,
     shutter: str | ShutterWindow = "box",
     sampling: str = "bilinear",
+    adaptive: bool | tuple[int, ...] = False,
 ) -> np.ndarray:
     """The per-pixel gather of seed 001 (Rosado): each pixel averages the sharp image along its own
     velocity over the exposure, weighted by the shutter.
@@ -234,6 +236,12 @@ def gather_blur(
     """
     checks.require_choice("sampling", sampling, SAMPLING_MODES)
     window = get_shutter(shutter)
+    classes = adaptive_classes(adaptive, samples)
+    if classes is not None:  # each tile: its class's filter, or the image where still
+        speeds = np.hypot(*np.moveaxis(tile_max(velocity, ADAPTIVE_TILE), 1, 0))
+        counts = tile_sample_counts(speeds, classes, STILL_SPEED, np)
+        by_count = {c: gather_blur(color, velocity, samples=c, shutter=shutter, sampling=sampling) for c in classes}
+        return select_by_tile(color, by_count, counts, ADAPTIVE_TILE)
     times = np.array(gather_tap_times(samples))
     masses = stratum_weights(window, times, 1.0 / samples, np)
     masses = masses / masses.sum()
@@ -263,6 +271,7 @@ def reconstruct(
     early_out: bool | None = None,
     directions: str = "neighbor",
     min_radius: float = DEFAULT_MIN_RADIUS,
+    adaptive: bool | tuple[int, ...] = False,
 ) -> np.ndarray:
     """Seed 000 Listing 1, the reconstruction filter, pixel by pixel.
 
@@ -288,7 +297,15 @@ def reconstruct(
         early_out=early_out,
         directions=directions,
         min_radius=min_radius,
+        adaptive=adaptive,
     )
+    if o.classes is not None:  # each tile: its class's filter, or the image where still
+        options = dict(max_radius=max_radius, soft_z_extent=soft_z_extent, jitter=jitter, sampling=sampling, shutter=shutter)
+        options.update(early_out=o.early_out, directions=directions, min_radius=min_radius)
+        speeds = np.hypot(*np.moveaxis(neighbor_max(tile_max(velocity, o.tile)), 1, 0))
+        counts = tile_sample_counts(speeds, o.classes, still_speed(o.early_out), np)
+        by_count = {c: reconstruct(color, velocity, depth, samples=c, **options) for c in o.classes}
+        return select_by_tile(color, by_count, counts, o.tile)
     samples, tile, window, early_out, sampling = o.samples, o.tile, o.window, o.early_out, o.sampling
     batch, _, height, width = color.shape
     if isinstance(jitter, str):

@@ -69,21 +69,37 @@ class ReconstructOptions:
     early_out: bool
     directions: str
     min_radius: float
+    #: Sample-count classes of tiled adaptive sampling (`diffblur._adaptive`), None when off.
+    classes: tuple[int, ...] | None = None
 
 
 def reconstruct_options(
-    *, max_radius: float, samples: int, soft_z_extent: float, sampling: str, shutter: Any, early_out: bool | None, directions: str, min_radius: float
+    *,
+    max_radius: float,
+    samples: int,
+    soft_z_extent: float,
+    sampling: str,
+    shutter: Any,
+    early_out: bool | None,
+    directions: str,
+    min_radius: float,
+    adaptive: object = False,
 ) -> ReconstructOptions:
     """Check reconstruct's options once for every backend and the reference. early_out=None
-    means on for "nearest" (the paper) and off for "bilinear" (the differentiable path)."""
+    means on for "nearest" (the paper) and off for "bilinear" (the differentiable path);
+    adaptive: see `diffblur._adaptive.adaptive_classes`."""
+    from diffblur._adaptive import adaptive_classes
+
     sampling = checks.require_choice("sampling", sampling, SAMPLING_MODES)
+    samples = checks.require_odd_int("samples", samples)
     return ReconstructOptions(
         tile=math.ceil(checks.require_positive_number("max_radius", max_radius)),
-        samples=checks.require_odd_int("samples", samples),
+        samples=samples,
         soft_z_extent=checks.require_positive_number("soft_z_extent", soft_z_extent),
         sampling=sampling,
         window=get_shutter(shutter),
         early_out=sampling == "nearest" if early_out is None else bool(early_out),
         directions=checks.require_choice("directions", directions, TAP_DIRECTIONS),
         min_radius=checks.require_positive_number("min_radius", min_radius),
+        classes=adaptive_classes(adaptive, samples),
     )

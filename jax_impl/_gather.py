@@ -6,6 +6,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from diffblur import checks
+from diffblur._adaptive import adaptive_classes
 from diffblur.conventions import DEFAULT_SAMPLES, SAMPLING_MODES, VECTOR_CHANNELS
 from diffblur.shutters import ShutterWindow, get_shutter
 from diffblur.taps import gather_tap_times, stratum_weights
@@ -20,6 +21,7 @@ def gather_blur(
     samples: int = DEFAULT_SAMPLES,
     shutter: str | ShutterWindow = "box",
     sampling: str = "bilinear",
+    adaptive: bool | tuple[int, ...] = False,
 ) -> Float[Array, "b c h w"]:
     """Blur each pixel along its own velocity, weighted by the shutter (seed 001's gather).
 
@@ -33,6 +35,12 @@ def gather_blur(
         shutter: a name in `diffblur.shutters.SHUTTERS` or a `ShutterWindow`, whose parameters may be
             arrays to fit.
         sampling: "bilinear" (differentiable in velocity) or "nearest" (the documents' rounding).
+        adaptive: tiled adaptive sampling (seed 001): each 16 x 16 tile's largest |V| picks the
+            fewest taps among a few classes that give one tap per pixel travelled (True: 3, 7,
+            15, ... up to samples; or a tuple of odd counts); tiles with no motion (|V| <= 0.001
+            px) return the image. Tiles of the full-rate class get the full-rate result. Each
+            class runs on its tiles' pixels only in eager mode; under compilation every class
+            runs on every pixel and is selected per tile (same result, no saving).
 
     Returns:
         (B, C, H, W), color's dtype. Positions beyond the border read the border pixel.
@@ -51,6 +59,11 @@ def gather_blur(
     samples = checks.require_odd_int("samples", samples)
     sampling = checks.require_choice("sampling", sampling, SAMPLING_MODES)
     window = get_shutter(shutter)
+    classes = adaptive_classes(adaptive, samples)
+    if classes is not None:
+        from jax_impl._adaptive import adaptive_gather
+
+        return adaptive_gather(color, velocity, classes, window, sampling)
     times = gather_tap_times(samples)
     masses = stratum_weights(window, jnp.asarray(times, dtype=color.dtype), 1.0 / samples, jnp)
     masses = (masses / masses.sum()).astype(color.dtype)

@@ -66,6 +66,7 @@ def reconstruct(
     early_out: bool | None = None,
     directions: str = "neighbor",
     min_radius: float = DEFAULT_MIN_RADIUS,
+    adaptive: bool | tuple[int, ...] = False,
 ) -> Float[Tensor, "b c h w"]:
     """Seed 000's reconstruction filter: plausible motion blur from color, velocity and depth.
 
@@ -97,6 +98,13 @@ def reconstruct(
         min_radius: speeds |V| below it count as min_radius px (seed 000 sec. 2.2 clamps the
             velocity buffer to at least 0.5 px), so a still pixel has centre weight 1 / min_radius
             rather than an infinite one that would keep blurry foregrounds from covering it.
+        adaptive: tiled adaptive sampling (seed 001) with the still-tile early-out: each tile's
+            |NeighborMax| picks the fewest taps among a few classes that give one tap per pixel
+            travelled (True: 3, 7, 15, ... up to samples; or a tuple of odd counts), and still
+            tiles (|NeighborMax| <= 0.001 px, or the early-out's 0.5 px when early_out is on)
+            return the image. Tiles of the full-rate class get the full-rate result. Each class
+            runs on its tiles' pixels only in eager mode; under compilation every class runs on
+            every pixel and is selected per tile (same result, no saving).
 
     Returns:
         (B, C, H, W), color's dtype and device.
@@ -119,8 +127,13 @@ def reconstruct(
         early_out=early_out,
         directions=directions,
         min_radius=min_radius,
+        adaptive=adaptive,
     )
     jitter = _jitter_tensor(jitter, color)
+    if o.classes is not None:
+        from torch_impl._adaptive import adaptive_reconstruct
+
+        return adaptive_reconstruct(color, velocity, depth, jitter, o)
     return _reconstruct(color, velocity, depth, o.tile, o.samples, o.soft_z_extent, jitter, o.sampling, o.window, o.early_out, o.directions, o.min_radius)
 
 

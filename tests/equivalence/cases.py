@@ -219,3 +219,7 @@ CASES += _MOTION_ID_CASES
 from tests.equivalence.cases_warp import CASES as _WARP_CASES  # noqa: E402
 
 CASES += _WARP_CASES
+
+from tests.equivalence.cases_tiles import CASES as _TILE_CASES  # noqa: E402
+
+CASES += _TILE_CASES

@@ -1,0 +1,250 @@
+"""Tiled adaptive sampling (seed 001) for `gather_blur` and `reconstruct`: each class of tiles runs its
+own tap count on the compacted pixels of its tiles; still tiles cost nothing (`diffblur._adaptive`).
+
+JAX needs static sizes. When the velocity is concrete (eager calls, also under jax.grad / jax.vjp,
+whose primal values are concrete), the tile classes are read on the host and each class's filter
+runs, jit-compiled, on its pixels, their count padded up to a power of two so that few sizes are
+compiled. Under jax.jit the velocity is traced and the classes cannot size arrays: every class runs
+on every pixel and the result is selected per tile (the same values, no saving).
+
+The compacted filters are the full-image filters written for a flat list of pixels: images are read
+as (B * H * W, K) tables, a pixel is its flat index b * H * W + y * W + x.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED, class_pixels, still_speed, tile_sample_counts
+from diffblur.conventions import EPSILON
+from diffblur.taps import gather_tap_times, reconstruct_tap_time, shutter_factor, stratum_weights
+from jax_impl._primitives import _cone, _cylinder, _safe_length, _soft_depth_compare, neighbor_max, tile_max
+from jax_impl._sampling import _clamp
+
+
+def _table(image: Array) -> Array:
+    """(B, K, H, W) -> (B * H * W, K), one row per pixel."""
+    batch, channels, height, width = image.shape
+    return image.transpose(0, 2, 3, 1).reshape(batch * height * width, channels)
+
+
+def _untable(table: Array, batch: int, height: int, width: int) -> Array:
+    return table.reshape(batch, height, width, -1).transpose(0, 3, 1, 2)
+
+
+def _sample_rows(table: Array, base: Array, x: Array, y: Array, height: int, width: int, mode: str) -> Array:
+    """table (B * H * W, K) at positions x, y (P,) of the images starting at rows `base` (P,), as
+    `jax_impl._sampling.sample` reads them (border clamp, a + f (b - a))."""
+    x = _clamp(x, width - 1.0)
+    y = _clamp(y, height - 1.0)
+    if mode == "nearest":
+        column = jnp.minimum(jnp.floor(x + 0.5).astype(jnp.int32), width - 1)
+        row = jnp.minimum(jnp.floor(y + 0.5).astype(jnp.int32), height - 1)
+        return table[base + row * width + column]
+    x0 = jax.lax.stop_gradient(jnp.floor(x))
+    y0 = jax.lax.stop_gradient(jnp.floor(y))
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    column0, row0 = x0.astype(jnp.int32), y0.astype(jnp.int32)
+    column1 = jnp.minimum(column0 + 1, width - 1)
+    row1 = jnp.minimum(row0 + 1, height - 1)
+    top_left = table[base + row0 * width + column0]
+    bottom_left = table[base + row1 * width + column0]
+    top = top_left + fx * (table[base + row0 * width + column1] - top_left)
+    bottom = bottom_left + fx * (table[base + row1 * width + column1] - bottom_left)
+    return top + fy * (bottom - top)
+
+
+def _coordinates(index: Array, height: int, width: int, dtype) -> tuple[Array, Array, Array]:
+    plane = height * width
+    within = index % plane
+    return index - within, (within % width).astype(dtype), (within // width).astype(dtype)
+
+
+def _pixel_counts(counts: Array, tile: int, height: int, width: int) -> Array:
+    return jnp.repeat(jnp.repeat(counts, tile, axis=1), tile, axis=2)[:, None, :height, :width]
+
+
+def _select(color: Array, by_count: dict[int, Array], pixel_counts: Array) -> Array:
+    out = color
+    for count, filtered in by_count.items():
+        out = jnp.where(pixel_counts == count, filtered, out)
+    return out
+
+
+def _concrete(x: Array) -> np.ndarray | None:
+    """x's values when they are known now (not under jax.jit), else None."""
+    try:
+        return np.asarray(jax.lax.stop_gradient(x))
+    except jax.errors.TracerArrayConversionError:
+        return None
+
+
+def _padded(pixels: np.ndarray, total: int) -> tuple[Array, Array]:
+    """Indices padded to a power of two: (to read, valid ones then pixel 0) and (to write, the
+    padding pointing past the end, which a scatter with mode="drop" ignores)."""
+    size = 1 << max(int(pixels.size - 1).bit_length(), 0)
+    read = np.zeros(size, dtype=np.int32)
+    write = np.full(size, total, dtype=np.int32)
+    read[: pixels.size] = pixels
+    write[: pixels.size] = pixels
+    return jnp.asarray(read), jnp.asarray(write)
+
+
+#: Classes with fewer pixels than this run op by op: compiling their filter costs more than it saves.
+JIT_MIN_PIXELS = 4096
+
+
+def _maybe_jit(fn, jitted, static: dict, pixels: int):
+    """The jitted function for large classes when the static options hash (a window with array
+    parameters does not), else the function itself, op by op."""
+    try:
+        hash(tuple(static.values()))
+    except TypeError:
+        return lambda *args: fn(*args, **static)
+    return lambda *args: (jitted if pixels >= JIT_MIN_PIXELS else fn)(*args, **static)
+
+
+def _compacted(color: Array, counts: np.ndarray, classes: tuple[int, ...], tile: int, run) -> Array:
+    batch, _, height, width = color.shape
+    out = _table(color)
+    for count in classes:
+        pixels = class_pixels(counts, count, tile, height, width)
+        if pixels.size:
+            read, write = _padded(pixels, out.shape[0])
+            out = out.at[write].set(run(read, count).astype(out.dtype), mode="drop")
+    return _untable(out, batch, height, width)
+
+
+def _gather_rows(color_table, velocity_table, index, masses, *, times, height, width, sampling):
+    base, x, y = _coordinates(index, height, width, color_table.dtype)
+    v = velocity_table[index]
+    out = jnp.zeros((index.shape[0], color_table.shape[1]), dtype=color_table.dtype)
+    for k, tau in enumerate(times):
+        out = out + masses[k] * _sample_rows(color_table, base, x - tau * v[:, 0], y - tau * v[:, 1], height, width, sampling)
+    return out
+
+
+_gather_rows_jit = jax.jit(_gather_rows, static_argnames=("times", "height", "width", "sampling"))
+
+
+def adaptive_gather(color: Array, velocity: Array, classes: tuple[int, ...], window, sampling: str) -> Array:
+    """gather_blur with tiled adaptive sampling (tiles of ADAPTIVE_TILE px, speed = max |V|)."""
+    from jax_impl._gather import gather_blur
+
+    _, _, height, width = color.shape
+    tile = ADAPTIVE_TILE
+    speed = _safe_length(tile_max(jax.lax.stop_gradient(velocity), tile))[:, 0]
+    concrete = _concrete(speed)
+    if concrete is None:
+        counts = tile_sample_counts(speed, classes, STILL_SPEED, jnp)
+        full = {c: gather_blur(color, velocity, samples=c, shutter=window, sampling=sampling) for c in classes}
+        return _select(color, full, _pixel_counts(counts, tile, height, width))
+    counts = tile_sample_counts(concrete, classes, STILL_SPEED, np)
+    color_table, velocity_table = _table(color), _table(velocity)
+
+    def run(index: Array, count: int) -> Array:
+        times = gather_tap_times(count)
+        masses = stratum_weights(window, jnp.asarray(times, dtype=color.dtype), 1.0 / count, jnp)
+        masses = (masses / masses.sum()).astype(color.dtype)
+        static = dict(times=times, height=height, width=width, sampling=sampling)
+        return _maybe_jit(_gather_rows, _gather_rows_jit, static, index.shape[0])(color_table, velocity_table, index, masses)
+
+    return _compacted(color, counts, classes, tile, run)
+
+
+def _reconstruct_rows(
+    buffers, neighbor_table, jitter_table, index, *, count, channels, height, width, tiles, tile, jitter_per_image, soft_z_extent, sampling, window, early_out, directions, min_radius
+):
+    from jax_impl._reconstruct import _at_least
+
+    dtype = buffers.dtype
+    tiles_y, tiles_x = tiles
+    base, x, y = _coordinates(index, height, width, dtype)
+    tile_index = (base // (height * width)) * (tiles_y * tiles_x) + (y.astype(jnp.int32) // tile) * tiles_x + x.astype(jnp.int32) // tile
+    v_n = neighbor_table[tile_index]
+    speed_n = _safe_length(v_n)
+    own = buffers[index]
+    c_x, v_x, z_x = own[:, :channels], own[:, channels : channels + 2], own[:, channels + 2 :]
+    length_x = _safe_length(v_x)
+    speed_x = _at_least(length_x, min_radius)
+    j = jitter_table[index if jitter_per_image else index % (height * width)]
+    x, y = x[:, None], y[:, None]
+    weight = (shutter_factor(window, jnp.zeros((), dtype=dtype), count, jnp) / speed_x).astype(dtype)
+    total = weight * c_x
+    for k in range(count):
+        if k == (count - 1) // 2:
+            continue
+        t = reconstruct_tap_time(k, j, count).astype(dtype)
+        use_own = directions == "neighbor_and_own" and k % 2 == 1
+        direction, speed = (v_x, length_x) if use_own else (v_n, speed_n)
+        tap_x = x + direction[:, :1] * t
+        tap_y = y + direction[:, 1:] * t
+        read = _sample_rows(buffers, base, tap_x[:, 0], tap_y[:, 0], height, width, sampling)
+        if sampling == "nearest":
+            distance = jnp.hypot(jnp.floor(tap_x + 0.5) - x, jnp.floor(tap_y + 0.5) - y)
+        else:
+            distance = jnp.abs(t) * speed
+        c_y, v_y, z_y = read[:, :channels], read[:, channels : channels + 2], read[:, channels + 2 :]
+        speed_y = _at_least(_safe_length(v_y), min_radius)
+        alpha = (
+            _soft_depth_compare(z_x, z_y, soft_z_extent) * _cone(distance, speed_y)
+            + _soft_depth_compare(z_y, z_x, soft_z_extent) * _cone(distance, speed_x)
+            + _cylinder(distance, speed_y) * _cylinder(distance, speed_x) * 2.0
+        ) * shutter_factor(window, -t, count, jnp)
+        weight = weight + alpha.astype(dtype)
+        total = total + (alpha * c_y).astype(dtype)
+    out = total / weight
+    if early_out:
+        out = jnp.where(speed_n <= EPSILON + 0.5, c_x, out)
+    return out.astype(dtype)
+
+
+_RECONSTRUCT_STATIC = (
+    "count", "channels", "height", "width", "tiles", "tile", "jitter_per_image", "soft_z_extent", "sampling", "window", "early_out", "directions", "min_radius"
+)
+_reconstruct_rows_jit = jax.jit(_reconstruct_rows, static_argnames=_RECONSTRUCT_STATIC)
+
+
+def adaptive_reconstruct(color, velocity, depth, jitter, o) -> Array:
+    """reconstruct with tiled adaptive sampling: its tiles (ceil(max_radius)), speed = |NeighborMax|."""
+    from jax_impl._reconstruct import _reconstruct
+
+    batch, channels, height, width = color.shape
+    tile = o.tile
+    neighbors = neighbor_max(tile_max(velocity, tile))
+    speed = _safe_length(jax.lax.stop_gradient(neighbors))[:, 0]
+    still = still_speed(o.early_out)
+    concrete = _concrete(speed)
+    if concrete is None:
+        counts = tile_sample_counts(speed, o.classes, still, jnp)
+        full = {
+            c: _reconstruct(color, velocity, depth, tile, c, o.soft_z_extent, jitter, o.sampling, o.window, o.early_out, o.directions, o.min_radius)
+            for c in o.classes
+        }
+        return _select(color, full, _pixel_counts(counts, tile, height, width))
+    counts = tile_sample_counts(concrete, o.classes, still, np)
+    buffers = _table(jnp.concatenate([color, velocity, depth], axis=1))
+    neighbor_table, jitter_table = _table(neighbors), _table(jitter)
+
+    def run(index: Array, count: int) -> Array:
+        static = dict(
+            count=count,
+            channels=channels,
+            height=height,
+            width=width,
+            tiles=tuple(neighbors.shape[2:]),
+            tile=tile,
+            jitter_per_image=jitter.shape[0] == batch,
+            soft_z_extent=o.soft_z_extent,
+            sampling=o.sampling,
+            window=o.window,
+            early_out=o.early_out,
+            directions=o.directions,
+            min_radius=o.min_radius,
+        )
+        return _maybe_jit(_reconstruct_rows, _reconstruct_rows_jit, static, index.shape[0])(buffers, neighbor_table, jitter_table, index)
+
+    return _compacted(color, counts, o.classes, tile, run)
