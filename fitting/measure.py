@@ -19,7 +19,7 @@ import fitting
 from diffblur.shutters import LinearRamp
 from fitting import scenes
 
-DEFAULTS = {"size": 64, "timing_size": 256, "far": 30.0, "noise": 0.01, "select_size": 32, "accuracy": True, "timing": True}
+DEFAULTS = {"size": 64, "timing_size": 256, "far": 30.0, "noise": 0.01, "select_size": 32, "accuracy": True, "selection": True, "timing": True}
 
 SOLVERS = {"torch": ("adam", "lbfgs"), "jax": ("lm", "dogleg", "bfgs", "lbfgs", "adam")}
 
@@ -44,16 +44,18 @@ def _row(what: str, result: fitting.FitResult, found: Any, truth: Any, error: fl
     return row
 
 
-def measure(*, size: int = DEFAULTS["size"], timing_size: int = DEFAULTS["timing_size"], far: float = DEFAULTS["far"], noise: float = DEFAULTS["noise"], select_size: int = DEFAULTS["select_size"], accuracy: bool = DEFAULTS["accuracy"], timing: bool = DEFAULTS["timing"]) -> list[dict[str, Any]]:
+def measure(*, size: int = DEFAULTS["size"], timing_size: int = DEFAULTS["timing_size"], far: float = DEFAULTS["far"], noise: float = DEFAULTS["noise"], select_size: int = DEFAULTS["select_size"], accuracy: bool = DEFAULTS["accuracy"], selection: bool = DEFAULTS["selection"], timing: bool = DEFAULTS["timing"]) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
     if accuracy:
-        rows += _accuracy(size, far, noise, select_size)
+        rows += _accuracy(size, far, noise)
+    if selection:
+        rows += _selection(select_size)
     if timing:
         rows += _timing(timing_size)
     return rows
 
 
-def _accuracy(size: int, far: float, noise: float, select_size: int) -> list[dict[str, Any]]:
+def _accuracy(size: int, far: float, noise: float) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
     velocity = (3.0, -1.5)
     s, _, truth = scenes.translation(size, velocity)
@@ -99,6 +101,11 @@ def _accuracy(size: int, far: float, noise: float, select_size: int) -> list[dic
     for levels in (1, 4):
         r = fitting.recover(c.color, c.target, model="global", method="gather", samples=31, init=start, iterations=60, levels=levels)
         rows.append(_row(f"global from {far:g} px away, {levels} level(s)", r, r.params["velocity"], (6.0, 2.0), _up_to_sign(r.params["velocity"], (6.0, 2.0))))
+    return rows
+
+
+def _selection(select_size: int) -> list[dict[str, Any]]:
+    rows: list[dict[str, Any]] = []
     # Model selection.
     for name, candidates in (("pan", ("global", "rotation", "motion_ids", "camera")), ("two_objects", ("global", "rotation", "motion_ids", "camera")), ("propeller", ("global", "rotation", "motion_ids", "camera"))):
         sc, sids, _ = getattr(scenes, name)(select_size)
@@ -135,9 +142,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--select-size", type=int, default=DEFAULTS["select_size"])
     parser.add_argument("--no-timing", action="store_true", help="skip the timing part")
     parser.add_argument("--no-accuracy", action="store_true", help="skip the accuracy part")
+    parser.add_argument("--no-selection", action="store_true", help="skip the model selection part")
     parser.add_argument("--json", help="also write the rows to this file")
     args = parser.parse_args(argv)
-    options = dict(size=args.size, timing_size=args.timing_size, far=args.far, noise=args.noise, select_size=args.select_size, accuracy=not args.no_accuracy, timing=not args.no_timing)
+    options = dict(size=args.size, timing_size=args.timing_size, far=args.far, noise=args.noise, select_size=args.select_size, accuracy=not args.no_accuracy, selection=not args.no_selection, timing=not args.no_timing)
     print("fitting.measure", json.dumps(options), flush=True)
     rows = measure(**options)
     if args.json:
