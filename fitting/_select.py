@@ -103,6 +103,6 @@ def select_model(
     chosen = fits[best]
     others = [r for r in table if r["model"] != best]
     reason = f"{best} ({chosen.n_params} parameters, loss {chosen.loss:.3g}): " + (
-        "; ".join(f"{r['model']} ({r['n_params']}) {r['verdict']}" for r in others) if others else "the only candidate"
+        "; ".join(f"{r['model']} ({r['n_params']} parameters, loss {r['loss']:.3g}) {r['verdict']}" for r in others) if others else "the only candidate"
     )
     return Selection(best, reason, table, fits)
