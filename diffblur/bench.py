@@ -91,6 +91,16 @@ def _scatter(with_background=False, **options):
     return call
 
 
+def _warp_blend(**options):
+    return lambda ops, x: ops.warp_blend(x["color"], x["velocity"], **options)
+
+
+def _accumulate_warps(curved=False, **options):
+    if curved:
+        return lambda ops, x: ops.accumulate_warps(x["color"], None, offset_prev=x["offset_prev"], offset_next=x["offset_next"], **options)
+    return lambda ops, x: ops.accumulate_warps(x["color"], x["velocity"], **options)
+
+
 def _kornia(kernel_size):
     def call(kornia, x):
         return kornia.filters.motion_blur(x["color"], kernel_size, x["angle"], 0.0, border_type="replicate", mode="bilinear")
@@ -132,6 +142,12 @@ SETTINGS: tuple[Setting, ...] = (
         _SCB,
         _SC,
     ),
+    Setting("warp_blend", "1 iteration", _warp_blend(iterations=1), _CV, _CV),
+    Setting("warp_blend", "2 iterations", _warp_blend(iterations=2), _CV, _CV),
+    Setting("warp_blend", "3 iterations", _warp_blend(iterations=3), _CV, _CV, quick=True),
+    Setting("accumulate_warps", "8 instants", _accumulate_warps(instants=8), _CV, _CV),
+    Setting("accumulate_warps", "32 instants", _accumulate_warps(instants=32), _CV, _CV),
+    Setting("accumulate_warps", "8 instants, curved offsets", _accumulate_warps(curved=True, instants=8), ("color", "offset_prev", "offset_next"), ("color", "offset_prev", "offset_next")),
 ) + tuple(
     Setting("kornia.motion_blur", f"kernel {k}, bilinear", _kornia(k), ("color", "angle"), ("color", "angle"), backends=("torch",), quick=k == 31, scenes=("uniform",))
     for k in KORNIA_KERNELS
@@ -367,6 +383,7 @@ def _machine(load_before: tuple[float, float, float]) -> dict:
         "load_before": list(load_before),
         "load_after": list(os.getloadavg()),
         "device": "cpu",
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
     }
 
 
@@ -412,6 +429,8 @@ def run_benchmarks(
     backends: tuple[str, ...] = ("torch", "jax"),
     repeats: int | None = None,
     targets: bool | None = None,
+    target_repeats: int = 2,
+    threads: int | None = None,
     target_height: int = 720,
     target_width: int = 1280,
     progress: bool = True,
@@ -419,13 +438,13 @@ def run_benchmarks(
     """Run the sweep, write BENCHMARKS.md, docs/benchmarks.json and docs/pareto.png under out_dir,
     and return the results ({"machine": ..., "rows": [...], "targets": [...]}).
 
+    threads: PyTorch intra-op threads (and, at 1, XLA's Eigen thread pool off; set before JAX starts);
+    None keeps the frameworks' defaults.
     quick: the entries marked quick, scenes "uniform" and "crossing", 1 repeat, no targets pass.
     scenes: preset names and/or "uniform" (default: all). repeats: timed runs per measurement
     (default 3, quick 1). targets: run TARGET_SETTINGS at target_height x target_width (default:
-    not quick).
+    not quick), timed target_repeats times each.
     """
-    from tqdm import tqdm
-
     height = checks.require_positive_int("height", height)
     width = checks.require_positive_int("width", width)
     all_scenes = ("uniform",) + PRESETS
@@ -440,6 +459,26 @@ def run_benchmarks(
     settings = [s for s in SETTINGS if s.quick or not quick]
     instants = (1, 4) if quick else ACCUMULATION_INSTANTS
     load_before = os.getloadavg()
+    if threads is not None:
+        # Set before either backend starts its thread pools: with more threads than free cores (a
+        # shared machine), every parallel region waits for descheduled threads (measured 14x slower).
+        threads = checks.require_positive_int("threads", threads)
+        if threads == 1 and "jax" in backends:
+            os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false").strip()
+        if "torch" in backends:
+            import torch
+
+            previous_threads = torch.get_num_threads()
+            torch.set_num_threads(threads)
+    try:
+        return _run(quick, height, width, scenes, backends, repeats, targets, target_repeats, target_height, target_width, threads, out_dir, progress, settings, instants, load_before)
+    finally:
+        if threads is not None and "torch" in backends:
+            torch.set_num_threads(previous_threads)
+
+
+def _run(quick, height, width, scenes, backends, repeats, targets, target_repeats, target_height, target_width, threads, out_dir, progress, settings, instants, load_before):
+    from tqdm import tqdm
 
     runners: dict[str, Any] = {}
     if "torch" in backends:
@@ -478,17 +517,27 @@ def run_benchmarks(
         if target_scene is not None:
             buffers, x = target_scene
             size = f"{target_width}x{target_height}"
-            target_rows = [_measure(runners, s, b, buffers, x, size, repeats, bar) for s, b in jobs_for("uniform", x, TARGET_SETTINGS)]
+            target_rows = [_measure(runners, s, b, buffers, x, size, target_repeats, bar) for s, b in jobs_for("uniform", x, TARGET_SETTINGS)]
 
     results = {
         "machine": _machine(load_before),
-        "command": "diffblur bench" + (" --quick" if quick else ""),
+        "command": _command(quick, height, width, scenes, backends, repeats, targets) + (f" --threads {threads}" if threads else ""),
         "repeats": repeats,
+        "target_repeats": target_repeats,
         "rows": [asdict(r) for r in rows],
         "targets": [asdict(r) for r in target_rows],
     }
     _write(out_dir, results)
     return results
+
+
+def _command(quick, height, width, scenes, backends, repeats, targets) -> str:
+    """The `diffblur bench` command line that reproduces a run (height == width on the command line)."""
+    words = ["diffblur bench"] + (["--quick"] if quick else [])
+    words += [f"--size {height}" if height == width else f"(height={height}, width={width})"]
+    words += [f"--scenes {','.join(scenes)}", f"--backends {','.join(backends)}", f"--repeats {repeats}"]
+    words += ["--targets" if targets else "--no-targets"]
+    return " ".join(words)
 
 
 def _preset(name, height, width):
@@ -596,7 +645,7 @@ def _markdown(results: dict) -> str:
         "[docs/benchmarks.json](docs/benchmarks.json), the Pareto plot in [docs/pareto.png](docs/pareto.png).",
         "",
         f"- date: {m['date']}",
-        f"- machine: {m['cpu']}, {m['cores']} cores visible, torch threads {m['torch_threads']}, {m['device']}; {m['platform']}",
+        f"- machine: {m['cpu']}, {m['cores']} cores visible, torch threads {m['torch_threads']}, XLA_FLAGS '{m.get('xla_flags', '')}', {m['device']}; {m['platform']}",
         f"- versions: {versions}",
         f"- load average (1, 5, 15 min) before: {', '.join(f'{v:.2f}' for v in m['load_before'])}; after: {', '.join(f'{v:.2f}' for v in m['load_after'])}",
         f"- timings: median of {results['repeats']} runs after one warm-up, float32, one image; PyTorch eager (forward under no_grad), "
@@ -613,7 +662,7 @@ def _markdown(results: dict) -> str:
     ]
     if results["targets"]:
         size = results["targets"][0]["size"]
-        out += [f"## Targets ({size}, uniform scene, float32)", ""] + _target_lines(results["targets"]) + [""]
+        out += [f"## Targets ({size}, uniform scene, float32, median of {results['target_repeats']} runs)", ""] + _target_lines(results["targets"]) + [""]
         out += _table(results["targets"]) + [""]
     scenes = list(dict.fromkeys(r["scene"] for r in results["rows"]))
     for name in scenes:
@@ -628,6 +677,8 @@ _COLORS = {
     "gather_blur": "tab:orange",
     "bezier_scatter": "tab:green",
     "kornia.motion_blur": "tab:red",
+    "warp_blend": "tab:purple",
+    "accumulate_warps": "tab:brown",
     "accumulation (renderer)": "tab:gray",
 }
 _MARKERS = {"torch": "o", "jax": "^", "numpy": "s"}

@@ -49,7 +49,7 @@ def _bench(args: argparse.Namespace) -> int:
     from diffblur.bench import run_benchmarks
 
     scenes = tuple(args.scenes.split(",")) if args.scenes else None
-    run_benchmarks(out_dir=args.out, quick=args.quick, height=args.size, width=args.size, scenes=scenes, repeats=args.repeats, targets=args.targets)
+    run_benchmarks(out_dir=args.out, quick=args.quick, height=args.size, width=args.size, scenes=scenes, backends=tuple(args.backends.split(",")), repeats=args.repeats, targets=args.targets, threads=args.threads)
     print(f"wrote {args.out}/BENCHMARKS.md, {args.out}/docs/benchmarks.json, {args.out}/docs/pareto.png")
     return 0
 
@@ -81,6 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--quick", action="store_true", help="a few settings on two scenes, one repeat, no 1280x720 targets pass")
     bench.add_argument("--size", type=int, default=160, help="scene height and width in pixels (default: 160)")
     bench.add_argument("--scenes", default=None, help="comma-separated scenes: 'uniform' and the presets (default: all)")
+    bench.add_argument("--backends", default="torch,jax", help="comma-separated: torch, jax (default: both)")
+    bench.add_argument("--threads", type=int, default=None, help="PyTorch threads (1 also turns XLA's thread pool off); default: the frameworks' own")
     bench.add_argument("--repeats", type=int, default=None, help="timed runs per measurement (default: 3, quick: 1)")
     bench.add_argument("--targets", action=argparse.BooleanOptionalAction, default=None, help="run the 1280x720 performance targets (default: unless --quick)")
     bench.set_defaults(run=_bench)

@@ -14,8 +14,11 @@ from diffblur.cli import main
 
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
+    torch = pytest.importorskip("torch", reason="the benchmark runs both backends")
+    before = torch.get_num_threads()
     out = tmp_path_factory.mktemp("bench")
-    results = bench.run_benchmarks(out_dir=out, quick=True, height=16, width=16, scenes=("uniform",), progress=False)
+    results = bench.run_benchmarks(out_dir=out, quick=True, height=16, width=16, scenes=("uniform",), threads=1, progress=False)
+    assert torch.get_num_threads() == before  # the one-thread measurement leaves the process as it was
     return out, results
 
 
