@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from diffblur import checks
+from diffblur._pyramid import level_of_detail, numpy_levels, numpy_sample_levels, pyramid_option
 from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED, adaptive_classes, select_by_tile, still_speed, tile_sample_counts
 from diffblur.conventions import (
     CYLINDER_INNER,
@@ -225,6 +226,7 @@ def gather_blur(
     shutter: str | ShutterWindow = "box",
     sampling: str = "bilinear",
     adaptive: bool | tuple[int, ...] = False,
+    pyramid: bool = False,
 ) -> np.ndarray:
     """The per-pixel gather of seed 001 (Rosado): each pixel averages the sharp image along its own
     velocity over the exposure, weighted by the shutter.
@@ -237,6 +239,7 @@ def gather_blur(
     checks.require_choice("sampling", sampling, SAMPLING_MODES)
     window = get_shutter(shutter)
     classes = adaptive_classes(adaptive, samples)
+    pyramid = pyramid_option(pyramid, adaptive, sampling)
     if classes is not None:  # each tile: its class's filter, or the image where still
         speeds = np.hypot(*np.moveaxis(tile_max(velocity, ADAPTIVE_TILE), 1, 0))
         counts = tile_sample_counts(speeds, classes, STILL_SPEED, np)
@@ -247,13 +250,19 @@ def gather_blur(
     masses = masses / masses.sum()
     sample = sample_bilinear if sampling == "bilinear" else sample_nearest
     batch, _, height, width = color.shape
+    levels = [numpy_levels(color[b]) for b in range(batch)] if pyramid else None
     out = np.zeros_like(color)
     for b in range(batch):
         for i in range(height):
             for j in range(width):
                 vx, vy = velocity[b, 0, i, j], velocity[b, 1, i, j]
+                if pyramid:  # taps 2 |V| / S apart read the level averaged over that spacing
+                    lod = float(level_of_detail(np.array(2.0 * math.hypot(vx, vy) / samples), len(levels[b]), np))
                 for tau, mass in zip(times, masses):
-                    out[b, :, i, j] += mass * sample(color[b], j - tau * vx, i - tau * vy)
+                    if pyramid:
+                        out[b, :, i, j] += mass * numpy_sample_levels(levels[b], j - tau * vx, i - tau * vy, lod)
+                    else:
+                        out[b, :, i, j] += mass * sample(color[b], j - tau * vx, i - tau * vy)
     return out
 
 
@@ -272,6 +281,7 @@ def reconstruct(
     directions: str = "neighbor",
     min_radius: float = DEFAULT_MIN_RADIUS,
     adaptive: bool | tuple[int, ...] = False,
+    pyramid: bool = False,
 ) -> np.ndarray:
     """Seed 000 Listing 1, the reconstruction filter, pixel by pixel.
 
@@ -298,6 +308,7 @@ def reconstruct(
         directions=directions,
         min_radius=min_radius,
         adaptive=adaptive,
+        pyramid=pyramid,
     )
     if o.classes is not None:  # each tile: its class's filter, or the image where still
         options = dict(max_radius=max_radius, soft_z_extent=soft_z_extent, jitter=jitter, sampling=sampling, shutter=shutter)
@@ -318,6 +329,7 @@ def reconstruct(
     buffers = np.concatenate([color, velocity, depth], axis=1)
     channels = color.shape[1]
     center_factor = float(shutter_factor(window, np.array(0.0), samples, np))
+    levels = [numpy_levels(color[b]) for b in range(batch)] if o.pyramid else None
     out = np.zeros_like(color)
     for b in range(batch):
         for i in range(height):
@@ -343,6 +355,9 @@ def reconstruct(
                         distance = abs(t) * math.hypot(*direction)
                     read = sample(buffers[b], x, y)
                     c_y, v_y, z_y = read[:channels], read[channels : channels + 2], read[channels + 2]
+                    if o.pyramid:  # the colour from the level that matches the tap spacing
+                        lod = float(level_of_detail(np.array(2.0 * math.hypot(*direction) / (samples + 1)), len(levels[b]), np))
+                        c_y = numpy_sample_levels(levels[b], x, y, lod)
                     speed_y = max(math.hypot(*v_y), min_radius)
                     front = soft_depth_compare(z_x, z_y, soft_z_extent)  # Y in front of X
                     back = soft_depth_compare(z_y, z_x, soft_z_extent)  # Y behind X

@@ -71,6 +71,8 @@ class ReconstructOptions:
     min_radius: float
     #: Sample-count classes of tiled adaptive sampling (`diffblur._adaptive`), None when off.
     classes: tuple[int, ...] | None = None
+    #: Taps read colour from a pre-filtered pyramid where they are farther apart than a pixel.
+    pyramid: bool = False
 
 
 def reconstruct_options(
@@ -84,11 +86,13 @@ def reconstruct_options(
     directions: str,
     min_radius: float,
     adaptive: object = False,
+    pyramid: object = False,
 ) -> ReconstructOptions:
     """Check reconstruct's options once for every backend and the reference. early_out=None
     means on for "nearest" (the paper) and off for "bilinear" (the differentiable path);
-    adaptive: see `diffblur._adaptive.adaptive_classes`."""
+    adaptive: see `diffblur._adaptive.adaptive_classes`; pyramid: `diffblur._pyramid`."""
     from diffblur._adaptive import adaptive_classes
+    from diffblur._pyramid import pyramid_option
 
     sampling = checks.require_choice("sampling", sampling, SAMPLING_MODES)
     samples = checks.require_odd_int("samples", samples)
@@ -102,4 +106,5 @@ def reconstruct_options(
         directions=checks.require_choice("directions", directions, TAP_DIRECTIONS),
         min_radius=checks.require_positive_number("min_radius", min_radius),
         classes=adaptive_classes(adaptive, samples),
+        pyramid=pyramid_option(pyramid, adaptive, sampling),
     )

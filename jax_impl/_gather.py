@@ -7,10 +7,13 @@ from jaxtyping import Array, Float
 
 from diffblur import checks
 from diffblur._adaptive import adaptive_classes
+from diffblur._pyramid import pyramid_option
 from diffblur.conventions import DEFAULT_SAMPLES, SAMPLING_MODES, VECTOR_CHANNELS
 from diffblur.shutters import ShutterWindow, get_shutter
 from diffblur.taps import gather_tap_times, stratum_weights
 from jax_impl import _checks
+from jax_impl._primitives import _safe_length
+from jax_impl._pyramid import Pyramid
 from jax_impl._sampling import pixel_grid, sample
 
 
@@ -22,6 +25,7 @@ def gather_blur(
     shutter: str | ShutterWindow = "box",
     sampling: str = "bilinear",
     adaptive: bool | tuple[int, ...] = False,
+    pyramid: bool = False,
 ) -> Float[Array, "b c h w"]:
     """Blur each pixel along its own velocity, weighted by the shutter (seed 001's gather).
 
@@ -41,6 +45,9 @@ def gather_blur(
             px) return the image. Tiles of the full-rate class get the full-rate result. Each
             class runs on its tiles' pixels only in eager mode; under compilation every class
             runs on every pixel and is selected per tile (same result, no saving).
+        pyramid: where the taps are farther apart than a pixel (2 |V| / samples > 1), read the
+            colour from a pre-filtered pyramid level (seed 001's texture-space blur), trilinearly,
+            so fewer taps than pixels travelled still give a smooth streak; needs "bilinear".
 
     Returns:
         (B, C, H, W), color's dtype. Positions beyond the border read the border pixel.
@@ -60,6 +67,7 @@ def gather_blur(
     sampling = checks.require_choice("sampling", sampling, SAMPLING_MODES)
     window = get_shutter(shutter)
     classes = adaptive_classes(adaptive, samples)
+    pyramid = pyramid_option(pyramid, adaptive, sampling)
     if classes is not None:
         from jax_impl._adaptive import adaptive_gather
 
@@ -69,7 +77,12 @@ def gather_blur(
     masses = (masses / masses.sum()).astype(color.dtype)
     _, _, height, width = color.shape
     x, y = pixel_grid(height, width, color.dtype)
+    read = lambda px, py: sample(color, px, py, sampling)  # noqa: E731
+    if pyramid:
+        levels = Pyramid(color)
+        lod = levels.level_of_detail(2.0 * _safe_length(velocity)[:, 0] / samples)
+        read = lambda px, py: levels.sample(px, py, lod)  # noqa: E731
     out = jnp.zeros_like(color)
     for k, tau in enumerate(times):
-        out = out + masses[k] * sample(color, x - tau * velocity[:, 0], y - tau * velocity[:, 1], sampling)
+        out = out + masses[k] * read(x - tau * velocity[:, 0], y - tau * velocity[:, 1])
     return out

@@ -29,6 +29,7 @@ from jax_impl._primitives import (
     neighbor_max,
     tile_max,
 )
+from jax_impl._pyramid import Pyramid
 from jax_impl._sampling import pixel_grid, sample
 
 
@@ -67,6 +68,7 @@ def reconstruct(
     directions: str = "neighbor",
     min_radius: float = DEFAULT_MIN_RADIUS,
     adaptive: bool | tuple[int, ...] = False,
+    pyramid: bool = False,
 ) -> Float[Array, "b c h w"]:
     """Seed 000's reconstruction filter: plausible motion blur from color, velocity and depth.
 
@@ -105,6 +107,10 @@ def reconstruct(
             return the image. Tiles of the full-rate class get the full-rate result. Each class
             runs on its tiles' pixels only in eager mode; under compilation every class runs on
             every pixel and is selected per tile (same result, no saving).
+        pyramid: where the taps are farther apart than a pixel (2 |v| / (samples + 1) > 1 along
+            the tap direction v), read the taps' colour from a pre-filtered pyramid level (seed
+            001's texture-space blur), trilinearly; depth and velocity stay full resolution.
+            Needs "bilinear"; not combined with adaptive yet.
 
     Returns:
         (B, C, H, W), color's dtype.
@@ -127,16 +133,19 @@ def reconstruct(
         directions=directions,
         min_radius=min_radius,
         adaptive=adaptive,
+        pyramid=pyramid,
     )
     jitter = _jitter_array(jitter, color)
     if o.classes is not None:
         from jax_impl._adaptive import adaptive_reconstruct
 
         return adaptive_reconstruct(color, velocity, depth, jitter, o)
-    return _reconstruct(color, velocity, depth, o.tile, o.samples, o.soft_z_extent, jitter, o.sampling, o.window, o.early_out, o.directions, o.min_radius)
+    return _reconstruct(
+        color, velocity, depth, o.tile, o.samples, o.soft_z_extent, jitter, o.sampling, o.window, o.early_out, o.directions, o.min_radius, pyramid=o.pyramid
+    )
 
 
-def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, sampling, window, early_out, directions, min_radius):
+def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, sampling, window, early_out, directions, min_radius, *, pyramid=False):
     _, channels, height, width = color.shape
     neighbors = neighbor_max(tile_max(velocity, tile))
     v_n = jnp.repeat(jnp.repeat(neighbors, tile, axis=2), tile, axis=3)[:, :, :height, :width]
@@ -146,6 +155,7 @@ def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, s
     x, y = pixel_grid(height, width, color.dtype)
     x, y = x[:, None], y[:, None]
     buffers = jnp.concatenate([color, velocity, depth], axis=1)  # read C, V and Z at a tap in one gather
+    levels = Pyramid(color) if pyramid else None
 
     taps = jnp.asarray([k for k in range(samples) if k != (samples - 1) // 2], dtype=jnp.int32)
 
@@ -169,6 +179,8 @@ def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, s
         else:
             distance = jnp.abs(t) * speed
         c_y, v_y, z_y = read[:, :channels], read[:, channels : channels + 2], read[:, channels + 2 :]
+        if levels is not None:  # the colour from the pyramid level that matches the tap spacing
+            c_y = levels.sample(tap_x[:, 0], tap_y[:, 0], levels.level_of_detail(2.0 * speed[:, 0] / (samples + 1)))
         speed_y = _at_least(_safe_length(v_y), min_radius)
         alpha = (
             _soft_depth_compare(depth, z_y, soft_z_extent) * _cone(distance, speed_y)  # blurry Y in front of any X

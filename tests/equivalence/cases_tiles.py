@@ -58,3 +58,24 @@ CASES = [
         early_out=True,
     ),
 ]
+
+
+def _fast(rng):
+    # Taps 2 |V| / S apart with |V| ~ 4 px and S = 3 or 5: most pixels read levels 0 to 2.
+    return {
+        "color": rng.random((1, 1, 6, 7)),
+        "velocity": rng.normal(size=(1, 2, 6, 7)) * 4.0,
+        "depth": rng.uniform(1.0, 1.3, size=(1, 1, 6, 7)),
+    }
+
+
+def _without_depth(rng):
+    inputs = _fast(rng)
+    del inputs["depth"]
+    return inputs
+
+
+CASES += [
+    _case("gather_blur_pyramid", "gather_blur", _without_depth, ("color", "velocity"), samples=3, pyramid=True),
+    _case("reconstruct_pyramid", "reconstruct", _fast, ("color", "velocity"), samples=5, max_radius=4.0, pyramid=True),
+]

@@ -138,3 +138,76 @@ BAD_CALLS = [
 def test_bad_input(backend, call, error, pattern):
     with pytest.raises(error, match=pattern):
         call(backend.ops, backend)
+
+
+def test_pyramid_levels_by_hand():
+    from diffblur._pyramid import level_of_detail, level_sizes, numpy_levels
+
+    assert level_sizes(5, 3) == [(5, 3), (3, 2), (2, 1), (1, 1)]
+    image = np.arange(9.0).reshape(1, 3, 3)
+    levels = numpy_levels(image)
+    # level 1: 2 x 2 blocks of [[0 1 2 2] [3 4 5 5] [6 7 8 8] [6 7 8 8]] (last row and column repeated)
+    np.testing.assert_allclose(levels[1][0], [[2.0, 3.5], [6.5, 8.0]])
+    np.testing.assert_allclose(levels[2][0], [[5.0]])
+    np.testing.assert_allclose(level_of_detail(np.array([0.5, 1.0, 2.0, 4.0, 1e6]), 3, np), [0.0, 0.0, 1.0, 2.0, 2.0])
+
+
+@pytest.mark.parametrize("op", ["gather_blur", "reconstruct"])
+def test_pyramid_changes_nothing_where_taps_are_a_pixel_apart(backend, op):
+    rng = np.random.default_rng(24)
+    color = backend.array(rng.random((1, 3, 12, 13)))
+    velocity = backend.array(rng.normal(size=(1, 2, 12, 13)) * 1.2)  # |V| <= ~4: 2 |V| / 15 < 1
+    depth = backend.array(rng.uniform(1.0, 2.0, size=(1, 1, 12, 13)))
+    args = (color, velocity) if op == "gather_blur" else (color, velocity, depth)
+    run = getattr(backend.ops, op)
+    np.testing.assert_array_equal(backend.numpy(run(*args, samples=15, pyramid=True)), backend.numpy(run(*args, samples=15)))
+
+
+@pytest.mark.parametrize("op", ["gather_blur", "reconstruct"])
+def test_pyramid_smooths_fewer_taps_than_pixels_travelled(backend, op):
+    """Stripes of period 2 px under a long motion with 5 samples whose taps land 4 px apart (gather:
+    V = 10, taps at 0, +-4, +-8 px; reconstruct: V = 12, taps at +-4, +-8 px): point taps all read
+    stripes of the pixel's own parity and the stripes survive; pyramid taps read level 2 (averaged
+    over 4 px) and give the true streak, the stripes averaged to 0.5 (the 63-tap gather)."""
+    speed = 10.0 if op == "gather_blur" else 12.0
+    color = np.zeros((1, 1, 8, 64))
+    color[..., ::2] = 1.0
+    velocity = np.zeros((1, 2, 8, 64))
+    velocity[:, 0] = speed
+    depth = np.ones((1, 1, 8, 64))
+    arrays = [backend.array(a) for a in (color, velocity, depth)]
+    run = getattr(backend.ops, op)
+    args = arrays[:2] if op == "gather_blur" else arrays
+    options = {} if op == "gather_blur" else {"max_radius": speed, "jitter": "none"}
+    truth = backend.numpy(backend.ops.gather_blur(*arrays[:2], samples=63))[..., 16:48]
+    np.testing.assert_allclose(truth, 0.5, atol=0.02)
+    point = backend.numpy(run(*args, samples=5, **options))[..., 16:48]
+    pyramid = backend.numpy(run(*args, samples=5, pyramid=True, **options))[..., 16:48]
+    point_error, pyramid_error = np.abs(point - truth).max(), np.abs(pyramid - truth).max()
+    assert point_error > 0.4, "the point taps should alias on this scene"
+    assert pyramid_error < 0.05
+
+
+def test_pyramid_gradient_reaches_the_velocity_through_the_level(backend):
+    """Where the level of detail is fractional, moving |V| changes the blend of two levels: the
+    velocity's gradient is nonzero even on a uniform translation, where the tap positions alone
+    would read a linear ramp image the same way along x."""
+    ramp = np.tile(np.linspace(0.0, 1.0, 32) ** 2, (1, 1, 8, 1))
+    velocity = np.zeros((1, 2, 8, 32))
+    velocity[:, 1] = 6.0  # vertical motion over an image constant along y: only the level blend changes it
+    grads = backend.grad(lambda c, v: backend.ops.gather_blur(c, v, samples=5, pyramid=True), backend.array(ramp), backend.array(velocity))
+    assert np.all(np.isfinite(grads[1]))
+    assert np.abs(grads[1][:, 1]).max() > 1e-4
+
+
+PYRAMID_BAD_CALLS = [
+    ("gather pyramid string", lambda o, b: _gather(o, b, pyramid="yes"), TypeError, r"pyramid must be True or False, got 'yes'"),
+    ("gather pyramid with adaptive", lambda o, b: _gather(o, b, pyramid=True, adaptive=True), ValueError, r"pyramid=True does not combine with adaptive sampling yet; got adaptive=True"),
+    ("reconstruct pyramid nearest", lambda o, b: _reconstruct(o, b, pyramid=True, sampling="nearest"), ValueError, r"pyramid=True reads the levels trilinearly and needs sampling='bilinear', got 'nearest'"),
+]
+
+
+@pytest.mark.parametrize("call, error, pattern", [c[1:] for c in PYRAMID_BAD_CALLS], ids=[c[0] for c in PYRAMID_BAD_CALLS])
+def test_pyramid_bad_input(backend, call, error, pattern):
+    with pytest.raises(error, match=pattern):
+        call(backend.ops, backend)
