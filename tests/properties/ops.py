@@ -254,6 +254,44 @@ OPS: list[Op] = [
 ]
 
 
+# Issue 7's ops and options. The adaptive and pyramid options run on PyTorch only here: in JAX
+# each costs ~35 s of compilation on the 2-core CI machine (every tap class, every pyramid level,
+# float64, float32 and float16); tests/equivalence shows JAX equal to PyTorch on them.
+OPS += [
+    Op("warp_blend", lambda o, x, e: o.warp_blend(x["color"], x["velocity"], iterations=2), differentiable=("color", "velocity"), **BLUR),
+    # PyTorch only here: the same sampling loop as gather_blur (equal for odd counts, tested with
+    # JAX == PyTorch in tests/equivalence); JAX would compile it once more per dtype and shape.
+    Op("accumulate_warps", lambda o, x, e: o.accumulate_warps(x["color"], x["velocity"], instants=4), differentiable=("color", "velocity"), backends=("torch",), **BLUR),
+    Op(
+        "reconstruct-adaptive",
+        lambda o, x, e: o.reconstruct(x["color"], x["velocity"], x["depth"], samples=7, max_radius=float(TILE), jitter="none", adaptive=True, soft_z_extent=e),
+        differentiable=("color", "velocity", "depth"),
+        uses_extent=True,
+        backends=("torch",),
+        **BLUR,
+    ),
+    Op(
+        "gather_blur-pyramid",
+        lambda o, x, e: o.gather_blur(x["color"], x["velocity"], samples=5, pyramid=True),
+        differentiable=("color", "velocity"),
+        backends=("torch",),
+        **{**BLUR, "shift": 4},  # the pyramid's 2x2 levels align with the image every 4 px
+    ),
+]
+
+# The other methods of the PyTorch layer (exposure 0.75 scales the velocity).
+OPS += [
+    Op(
+        f"MotionBlur-{method}",
+        lambda o, x, e, method=method, options=options: o.MotionBlur(method, exposure=0.75, **options)(x["color"], x["velocity"]),
+        differentiable=("color", "velocity"),
+        backends=("torch",),
+        **BLUR,
+    )
+    for method, options in (("gather", {"samples": 5}), ("warp_blend", {"iterations": 2}), ("accumulate", {"instants": 4}))
+]
+
+
 def _motion_ids(example: Example, rng: np.random.Generator) -> dict:
     palette = vectors(example, rng, 2, 4, 1)[..., 0].transpose(0, 2, 1)  # (B, K=4, 2)
     return {"ids": rng.integers(0, 4, size=(2, 1, 7, 9)), "palette": np.ascontiguousarray(palette)}
