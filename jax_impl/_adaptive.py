@@ -3,8 +3,9 @@ own tap count on the compacted pixels of its tiles; still tiles cost nothing (`d
 
 JAX needs static sizes. When the velocity is concrete (eager calls, also under jax.grad / jax.vjp,
 whose primal values are concrete), the tile classes are read on the host and each class's filter
-runs, jit-compiled, on its pixels, their count padded up to a power of two so that few sizes are
-compiled. Under jax.jit the velocity is traced and the classes cannot size arrays: every class runs
+runs on its pixels, their count padded up to a power of two so that few sizes are compiled; the
+whole compacted computation (tables, classes, scatter back) is one jit-compiled function once the
+moving pixels number JIT_MIN_PIXELS or more (below that, op by op: compiling would cost more). Under jax.jit the velocity is traced and the classes cannot size arrays: every class runs
 on every pixel and the result is selected per tile (the same values, no saving).
 
 The compacted filters are the full-image filters written for a flat list of pixels: images are read
@@ -93,29 +94,26 @@ def _padded(pixels: np.ndarray, total: int) -> tuple[Array, Array]:
     return jnp.asarray(read), jnp.asarray(write)
 
 
-#: Classes with fewer pixels than this run op by op: compiling their filter costs more than it saves.
+#: Images with fewer moving pixels than this run op by op: compiling costs more than it saves.
 JIT_MIN_PIXELS = 4096
 
 
-def _maybe_jit(fn, jitted, static: dict, pixels: int):
-    """The jitted function for large classes when the static options hash (a window with array
-    parameters does not), else the function itself, op by op."""
+def _hashable(static: dict) -> bool:
     try:
         hash(tuple(static.values()))
-    except TypeError:
-        return lambda *args: fn(*args, **static)
-    return lambda *args: (jitted if pixels >= JIT_MIN_PIXELS else fn)(*args, **static)
+    except TypeError:  # e.g. a shutter window whose parameters are arrays being fitted
+        return False
+    return True
 
 
-def _compacted(color: Array, counts: np.ndarray, classes: tuple[int, ...], tile: int, run) -> Array:
-    batch, _, height, width = color.shape
-    out = _table(color)
+def _class_indices(counts: np.ndarray, classes: tuple[int, ...], tile: int, height: int, width: int, total: int):
+    """For each class with tiles: (count, read indices, write indices), padded (see _padded)."""
+    found = []
     for count in classes:
         pixels = class_pixels(counts, count, tile, height, width)
         if pixels.size:
-            read, write = _padded(pixels, out.shape[0])
-            out = out.at[write].set(run(read, count).astype(out.dtype), mode="drop")
-    return _untable(out, batch, height, width)
+            found.append((count, *_padded(pixels, total), pixels.size))
+    return found
 
 
 def _gather_rows(color_table, velocity_table, index, masses, *, times, height, width, sampling):
@@ -127,14 +125,25 @@ def _gather_rows(color_table, velocity_table, index, masses, *, times, height, w
     return out
 
 
-_gather_rows_jit = jax.jit(_gather_rows, static_argnames=("times", "height", "width", "sampling"))
+def _gather_compacted(color, velocity, masses, reads, writes, *, counts, sampling):
+    """Each class's gather on its pixels, written into the image (one function, jit-compiled whole)."""
+    batch, _, height, width = color.shape
+    color_table, velocity_table = _table(color), _table(velocity)
+    out = color_table
+    for count, mass, read, write in zip(counts, masses, reads, writes):
+        values = _gather_rows(color_table, velocity_table, read, mass, times=gather_tap_times(count), height=height, width=width, sampling=sampling)
+        out = out.at[write].set(values.astype(out.dtype), mode="drop")
+    return _untable(out, batch, height, width)
+
+
+_gather_compacted_jit = jax.jit(_gather_compacted, static_argnames=("counts", "sampling"))
 
 
 def adaptive_gather(color: Array, velocity: Array, classes: tuple[int, ...], window, sampling: str) -> Array:
     """gather_blur with tiled adaptive sampling (tiles of ADAPTIVE_TILE px, speed = max |V|)."""
     from jax_impl._gather import gather_blur
 
-    _, _, height, width = color.shape
+    batch, _, height, width = color.shape
     tile = ADAPTIVE_TILE
     speed = _safe_length(tile_max(jax.lax.stop_gradient(velocity), tile))[:, 0]
     concrete = _concrete(speed)
@@ -142,17 +151,16 @@ def adaptive_gather(color: Array, velocity: Array, classes: tuple[int, ...], win
         counts = tile_sample_counts(speed, classes, STILL_SPEED, jnp)
         full = {c: gather_blur(color, velocity, samples=c, shutter=window, sampling=sampling) for c in classes}
         return _select(color, full, _pixel_counts(counts, tile, height, width))
-    counts = tile_sample_counts(concrete, classes, STILL_SPEED, np)
-    color_table, velocity_table = _table(color), _table(velocity)
-
-    def run(index: Array, count: int) -> Array:
-        times = gather_tap_times(count)
-        masses = stratum_weights(window, jnp.asarray(times, dtype=color.dtype), 1.0 / count, jnp)
-        masses = (masses / masses.sum()).astype(color.dtype)
-        static = dict(times=times, height=height, width=width, sampling=sampling)
-        return _maybe_jit(_gather_rows, _gather_rows_jit, static, index.shape[0])(color_table, velocity_table, index, masses)
-
-    return _compacted(color, counts, classes, tile, run)
+    found = _class_indices(tile_sample_counts(concrete, classes, STILL_SPEED, np), classes, tile, height, width, batch * height * width)
+    if not found:
+        return color
+    masses = []
+    for count, *_ in found:
+        mass = stratum_weights(window, jnp.asarray(gather_tap_times(count), dtype=color.dtype), 1.0 / count, jnp)
+        masses.append((mass / mass.sum()).astype(color.dtype))
+    counts = tuple(f[0] for f in found)
+    run = _gather_compacted_jit if sum(f[3] for f in found) >= JIT_MIN_PIXELS else _gather_compacted
+    return run(color, velocity, tuple(masses), tuple(f[1] for f in found), tuple(f[2] for f in found), counts=counts, sampling=sampling)
 
 
 def _reconstruct_rows(
@@ -202,20 +210,48 @@ def _reconstruct_rows(
     return out.astype(dtype)
 
 
-_RECONSTRUCT_STATIC = (
-    "count", "channels", "height", "width", "tiles", "tile", "jitter_per_image", "soft_z_extent", "sampling", "window", "early_out", "directions", "min_radius"
-)
-_reconstruct_rows_jit = jax.jit(_reconstruct_rows, static_argnames=_RECONSTRUCT_STATIC)
+def _reconstruct_compacted(color, velocity, depth, jitter, reads, writes, *, counts, tile, soft_z_extent, sampling, window, early_out, directions, min_radius):
+    """Each class's filter on its pixels, written into the image (one function, jit-compiled whole)."""
+    batch, channels, height, width = color.shape
+    neighbors = neighbor_max(tile_max(velocity, tile))
+    buffers = _table(jnp.concatenate([color, velocity, depth], axis=1))
+    neighbor_table, jitter_table = _table(neighbors), _table(jitter)
+    out = _table(color)
+    for count, read, write in zip(counts, reads, writes):
+        values = _reconstruct_rows(
+            buffers,
+            neighbor_table,
+            jitter_table,
+            read,
+            count=count,
+            channels=channels,
+            height=height,
+            width=width,
+            tiles=tuple(neighbors.shape[2:]),
+            tile=tile,
+            jitter_per_image=jitter.shape[0] == batch,
+            soft_z_extent=soft_z_extent,
+            sampling=sampling,
+            window=window,
+            early_out=early_out,
+            directions=directions,
+            min_radius=min_radius,
+        )
+        out = out.at[write].set(values, mode="drop")
+    return _untable(out, batch, height, width)
+
+
+_RECONSTRUCT_STATIC = ("counts", "tile", "soft_z_extent", "sampling", "window", "early_out", "directions", "min_radius")
+_reconstruct_compacted_jit = jax.jit(_reconstruct_compacted, static_argnames=_RECONSTRUCT_STATIC)
 
 
 def adaptive_reconstruct(color, velocity, depth, jitter, o) -> Array:
     """reconstruct with tiled adaptive sampling: its tiles (ceil(max_radius)), speed = |NeighborMax|."""
     from jax_impl._reconstruct import _reconstruct
 
-    batch, channels, height, width = color.shape
+    batch, _, height, width = color.shape
     tile = o.tile
-    neighbors = neighbor_max(tile_max(velocity, tile))
-    speed = _safe_length(jax.lax.stop_gradient(neighbors))[:, 0]
+    speed = _safe_length(neighbor_max(tile_max(jax.lax.stop_gradient(velocity), tile)))[:, 0]
     still = still_speed(o.early_out)
     concrete = _concrete(speed)
     if concrete is None:
@@ -225,26 +261,19 @@ def adaptive_reconstruct(color, velocity, depth, jitter, o) -> Array:
             for c in o.classes
         }
         return _select(color, full, _pixel_counts(counts, tile, height, width))
-    counts = tile_sample_counts(concrete, o.classes, still, np)
-    buffers = _table(jnp.concatenate([color, velocity, depth], axis=1))
-    neighbor_table, jitter_table = _table(neighbors), _table(jitter)
-
-    def run(index: Array, count: int) -> Array:
-        static = dict(
-            count=count,
-            channels=channels,
-            height=height,
-            width=width,
-            tiles=tuple(neighbors.shape[2:]),
-            tile=tile,
-            jitter_per_image=jitter.shape[0] == batch,
-            soft_z_extent=o.soft_z_extent,
-            sampling=o.sampling,
-            window=o.window,
-            early_out=o.early_out,
-            directions=o.directions,
-            min_radius=o.min_radius,
-        )
-        return _maybe_jit(_reconstruct_rows, _reconstruct_rows_jit, static, index.shape[0])(buffers, neighbor_table, jitter_table, index)
-
-    return _compacted(color, counts, o.classes, tile, run)
+    found = _class_indices(tile_sample_counts(concrete, o.classes, still, np), o.classes, tile, height, width, batch * height * width)
+    if not found:
+        return color
+    static = dict(
+        counts=tuple(f[0] for f in found),
+        tile=tile,
+        soft_z_extent=o.soft_z_extent,
+        sampling=o.sampling,
+        window=o.window,
+        early_out=o.early_out,
+        directions=o.directions,
+        min_radius=o.min_radius,
+    )
+    jit = _hashable(static) and sum(f[3] for f in found) >= JIT_MIN_PIXELS
+    run = _reconstruct_compacted_jit if jit else _reconstruct_compacted
+    return run(color, velocity, depth, jitter, tuple(f[1] for f in found), tuple(f[2] for f in found), **static)

@@ -82,8 +82,7 @@ def test_adaptive_gradients_equal_the_full_rate_ones_but_for_the_still_switch(ba
     no gradient of its own there (the full-rate filter's jittered taps give it one): the switch that
     makes still tiles cost nothing."""
     rng = np.random.default_rng(22)
-    color, velocity, depth = _scene(rng, batch=1)
-    velocity[:, 0, 33:38, 20:30] = 0.0  # no 3-tap tiles
+    color, velocity, depth = _scene(rng, height=30, width=30, batch=1)  # no 3-tap tiles (the slow block is outside)
     arrays = [backend.array(a) for a in (color, velocity, depth)]
     full = backend.grad(lambda c, v, d: backend.ops.reconstruct(c, v, d, max_radius=5.0, samples=7) ** 2, *arrays)
     adaptive = backend.grad(lambda c, v, d: backend.ops.reconstruct(c, v, d, max_radius=5.0, samples=7, adaptive=(7,)) ** 2, *arrays)
