@@ -44,7 +44,9 @@ def sample(image: Array, x: Array, y: Array, mode: str) -> Array:
     y0 = jax.lax.stop_gradient(jnp.floor(y))
     fx = (x - x0)[:, None]
     fy = (y - y0)[:, None]
-    column0, row0 = x0.astype(jnp.int32), y0.astype(jnp.int32)
+    # Clamped again as integers: in bfloat16 the border W - 1 itself rounds up past the image
+    # beyond 256 px (float16 beyond 2048 px).
+    column0, row0 = jnp.minimum(x0.astype(jnp.int32), width - 1), jnp.minimum(y0.astype(jnp.int32), height - 1)
     column1 = jnp.minimum(column0 + 1, width - 1)
     row1 = jnp.minimum(row0 + 1, height - 1)
     # a + f (b - a), not (1 - f) a + f b: equal neighbours give exactly their value, so equal depths

@@ -36,7 +36,9 @@ def sample(image: Tensor, x: Tensor, y: Tensor, mode: str) -> Tensor:
     y0 = torch.floor(y)
     fx = (x - x0).unsqueeze(1)
     fy = (y - y0).unsqueeze(1)
-    column0, row0 = x0.long(), y0.long()
+    # Clamped again as integers: in bfloat16 the border W - 1 itself rounds up past the image
+    # beyond 256 px (float16 beyond 2048 px).
+    column0, row0 = x0.long().clamp(max=width - 1), y0.long().clamp(max=height - 1)
     column1 = (column0 + 1).clamp(max=width - 1)
     row1 = (row0 + 1).clamp(max=height - 1)
     # a + f (b - a), not (1 - f) a + f b: equal neighbours give exactly their value, so equal depths

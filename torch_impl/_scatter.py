@@ -133,6 +133,8 @@ def _splat(
         weight = weight * (2.0 * _safe_hypot(vx, vy))
     x0, y0 = torch.floor(px), torch.floor(py)
     fx, fy = px - x0, py - y0
+    if x0.dtype in (torch.float16, torch.bfloat16):  # the bound W - 1 rounds in bfloat16 beyond 256 px
+        x0, y0 = x0.float(), y0.float()
     # Points with a corner in the image have their top-left corner in the padded image.
     near = (x0 >= -1) & (x0 <= width - 1) & (y0 >= -1) & (y0 <= height - 1)
     weight = torch.where(near, weight, 0.0)
