@@ -645,6 +645,7 @@ def _markdown(results: dict) -> str:
         "[docs/benchmarks.json](docs/benchmarks.json), the Pareto plot in [docs/pareto.png](docs/pareto.png).",
         "",
         f"- date: {m['date']}",
+        *([f"- {results['note']}"] if results.get("note") else []),
         f"- machine: {m['cpu']}, {m['cores']} cores visible, torch threads {m['torch_threads']}, XLA_FLAGS '{m.get('xla_flags', '')}', {m['device']}; {m['platform']}",
         f"- versions: {versions}",
         f"- load average (1, 5, 15 min) before: {', '.join(f'{v:.2f}' for v in m['load_before'])}; after: {', '.join(f'{v:.2f}' for v in m['load_after'])}",
@@ -690,6 +691,8 @@ def _plot(path: str, results: dict) -> None:
     from matplotlib.lines import Line2D
 
     scenes = list(dict.fromkeys(r["scene"] for r in results["rows"]))
+    if not scenes:  # a targets-only run has no sweep to plot
+        return
     columns = min(4, len(scenes))
     lines_ = math.ceil(len(scenes) / columns)
     fig = Figure(figsize=(4.2 * columns, 3.6 * lines_ + 0.8), layout="constrained")
