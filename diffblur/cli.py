@@ -11,8 +11,8 @@ import numpy as np
 def _demo(args: argparse.Namespace) -> int:
     from diffblur.demo import format_table, run_demo
 
-    path, results = run_demo(args.out, scene_name=args.scene, size=args.size)
-    print(format_table(results))
+    path, results, fits = run_demo(args.out, scene_name=args.scene, size=args.size, fit=not args.no_fit)
+    print(format_table(results, fits))
     print(f"wrote {path}")
     return 0
 
@@ -68,8 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
     demo = commands.add_parser("demo", help="blur a built-in scene with every method, compare with ground truth, write a picture")
     demo.add_argument("--out", required=True, help="folder for demo.png")
-    demo.add_argument("--scene", default="crossing", choices=PRESETS, help="built-in scene (default: crossing)")
+    demo.add_argument("--scene", default="translate", choices=PRESETS, help="built-in scene (default: translate)")
     demo.add_argument("--size", type=int, default=160, help="image height and width in pixels (default: 160)")
+    demo.add_argument("--no-fit", action="store_true", help="skip recovering the motion by fitting")
     demo.set_defaults(run=_demo)
     gallery = commands.add_parser("gallery", help="write a picture of every built-in scene: sharp, ground truth, velocity, depth")
     gallery.add_argument("--out", required=True, help="folder for preset_gallery.png")
