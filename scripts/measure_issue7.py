@@ -132,7 +132,7 @@ def still_scene(size: int = 512, *, moving_fraction: float = 0.1, speed=(8.0, 3.
     return color, velocity, depth
 
 
-def adaptive_speed(size: int = 512, *, samples: int = 15, max_radius: float = 16.0, repeats: int = 5) -> list[dict]:
+def adaptive_speed(size: int = 512, *, samples: int = 15, max_radius: float = 16.0, repeats: int = 5, backends=("torch", "jax")) -> list[dict]:
     """Adaptive against full-rate sampling on `still_scene`, both ops and both frameworks, in the
     same run: the times, their ratio, the fraction of pixels the adaptive filter processed, and the
     largest difference from the full-rate output on still tiles and on full-rate-class tiles."""
@@ -157,7 +157,7 @@ def adaptive_speed(size: int = 512, *, samples: int = 15, max_radius: float = 16
         counts = tile_sample_counts(np.hypot(tiles[:, 0], tiles[:, 1]), classes, still_speed(False), np)
         pixel_counts = np.repeat(np.repeat(counts, tile, axis=1), tile, axis=2)[:, None, :size, :size]
         pixel_counts = np.broadcast_to(pixel_counts, color.shape)
-        for backend in ("torch", "jax"):
+        for backend in backends:
             if backend == "torch":
                 arrays = [torch.tensor(a) for a in (color, velocity, depth)][: 2 if op == "gather_blur" else 3]
                 fn = getattr(torch_impl, op)
@@ -251,12 +251,13 @@ def main(argv=None) -> None:
     parser.add_argument("--size", type=int, default=128, help="preset size for the accuracy table")
     parser.add_argument("--adaptive-size", type=int, default=512)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--backends", nargs="+", default=["torch", "jax"], choices=["torch", "jax"], help="for --only adaptive")
     args = parser.parse_args(argv)
     print(f"# {time.strftime('%Y-%m-%d %H:%M')} {platform.machine()} {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}")
     if args.only in (None, "ghosting"):
         print("picture:", save_ghosting_picture(os.path.join(args.out, "accumulate_ghosting.png")))
     if args.only in (None, "adaptive"):
-        _print_adaptive(adaptive_speed(args.adaptive_size, repeats=args.repeats))
+        _print_adaptive(adaptive_speed(args.adaptive_size, repeats=args.repeats, backends=tuple(args.backends)))
     if args.only in (None, "accuracy"):
         _print_accuracy(accuracy_table(size=args.size, repeats=args.repeats))
     print(f"# load at the end {os.getloadavg()[0]:.1f}")
