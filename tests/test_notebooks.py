@@ -14,6 +14,13 @@ NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
 EXPECTED_OUTPUT = {
     "quickstart.ipynb": [r"max \|torch - jax\| = \d\.\de-0[5-9]", r"d loss / d exposure at 0\.5: torch -"],
     "extremes.ipynb": [r"box:  loss\(\+4\) = 0\.00e\+00", r"local minima, prefiltered:\s+\[20\.\]"],
+    "fitting.ipynb": [
+        r"torch: velocity = \(-?(2\.9|3\.0)\d, -?1\.[45]\d\)",
+        r"jax  : velocity = \(-?(2\.9|3\.0)\d, -?1\.[45]\d\)",
+        r"global velocity error \(up to sign\): 0\.0\d\d px",
+        r"exposure: true 1\.000, recovered (0\.99|1\.00)\d\d",
+        r"angle: true 0\.500 rad, recovered 0\.(49|50)\d rad",
+    ],
 }
 
 
