@@ -21,6 +21,14 @@ EXPECTED_OUTPUT = {
         r"exposure: true 1\.000, recovered (0\.99|1\.00)\d\d",
         r"angle: true 0\.500 rad, recovered 0\.(49|50)\d rad",
     ],
+    "speed_accuracy.ipynb": [
+        r"\d+ rows from `diffblur bench",
+        r"propeller  \| warp_blend 1 iteration \[jax\]",
+        r"propeller front \(\d+ rows, fastest first\)",
+        r"propeller: bezier \d+\.\d\d dB vs gather \d+\.\d\d dB",
+        r"wrote BENCHMARKS\.md, docs/benchmarks\.json, docs/pareto\.png",
+        r"live crossing 32 px: bezier \d+\.\d\d dB > gather \d+\.\d\d dB",
+    ],
 }
 
 
