@@ -29,15 +29,10 @@ def load_image(path: str, *, channels: int | None = None) -> np.ndarray:
         while x.ndim < 4:
             x = x[None]
         return x
-    from matplotlib.image import imread
-
+    from diffblur.blur_image import read_picture
     from diffblur.scenes import srgb_to_linear
 
-    x = np.asarray(imread(path), dtype=np.float64)
-    if x.max() > 1.0:
-        x = x / 255.0
-    x = x[..., None] if x.ndim == 2 else x[..., :3]
-    x = srgb_to_linear(x.transpose(2, 0, 1)[None])
+    x = srgb_to_linear(read_picture(path).transpose(2, 0, 1)[None])
     return x[:, :1] if channels == 1 else x
 
 
