@@ -23,7 +23,7 @@ from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED, class_pixels, still_s
 from diffblur.conventions import EPSILON
 from diffblur.taps import gather_tap_times, reconstruct_tap_time, shutter_factor, stratum_weights
 from jax_impl._primitives import _cone, _cylinder, _safe_length, _soft_depth_compare, neighbor_max, tile_max
-from jax_impl._sampling import _clamp
+from jax_impl._sampling import _clamp, position_dtype, widen_window
 
 
 def _table(image: Array) -> Array:
@@ -38,30 +38,40 @@ def _untable(table: Array, batch: int, height: int, width: int) -> Array:
 
 def _sample_rows(table: Array, base: Array, x: Array, y: Array, height: int, width: int, mode: str) -> Array:
     """table (B * H * W, K) at positions x, y (P,) of the images starting at rows `base` (P,), as
-    `jax_impl._sampling.sample` reads them (border clamp, a + f (b - a))."""
+    `jax_impl._sampling.sample` reads them (border clamp, a + f (b - a)), in x's dtype."""
     x = _clamp(x, width - 1.0)
     y = _clamp(y, height - 1.0)
     if mode == "nearest":
         column = jnp.minimum(jnp.floor(x + 0.5).astype(jnp.int32), width - 1)
         row = jnp.minimum(jnp.floor(y + 0.5).astype(jnp.int32), height - 1)
-        return table[base + row * width + column]
+        return table[base + row * width + column].astype(x.dtype)
     x0 = jax.lax.stop_gradient(jnp.floor(x))
     y0 = jax.lax.stop_gradient(jnp.floor(y))
     fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    column0, row0 = x0.astype(jnp.int32), y0.astype(jnp.int32)
+    column0, row0 = jnp.minimum(x0.astype(jnp.int32), width - 1), jnp.minimum(y0.astype(jnp.int32), height - 1)
     column1 = jnp.minimum(column0 + 1, width - 1)
     row1 = jnp.minimum(row0 + 1, height - 1)
-    top_left = table[base + row0 * width + column0]
-    bottom_left = table[base + row1 * width + column0]
-    top = top_left + fx * (table[base + row0 * width + column1] - top_left)
-    bottom = bottom_left + fx * (table[base + row1 * width + column1] - bottom_left)
+    read = lambda row, column: table[base + row * width + column].astype(x.dtype)  # noqa: E731
+    top_left = read(row0, column0)
+    bottom_left = read(row1, column0)
+    top = top_left + fx * (read(row0, column1) - top_left)
+    bottom = bottom_left + fx * (read(row1, column1) - bottom_left)
     return top + fy * (bottom - top)
 
 
 def _coordinates(index: Array, height: int, width: int, dtype) -> tuple[Array, Array, Array]:
+    """Row base b * H * W, and x, y (P,) in `position_dtype(dtype)`, of flat pixel indices."""
     plane = height * width
     within = index % plane
+    dtype = position_dtype(dtype)
     return index - within, (within % width).astype(dtype), (within // width).astype(dtype)
+
+
+def _tile_index(index: Array, height: int, width: int, tile: int, tiles_y: int, tiles_x: int) -> Array:
+    """The flat index b * TH * TW + ty * TW + tx of each flat pixel index's tile, in integers."""
+    plane = height * width
+    within = index % plane
+    return (index // plane) * (tiles_y * tiles_x) + (within // width // tile) * tiles_x + (within % width) // tile
 
 
 def _pixel_counts(counts: Array, tile: int, height: int, width: int) -> Array:
@@ -119,9 +129,9 @@ def _class_indices(counts: np.ndarray, classes: tuple[int, ...], tile: int, heig
 
 
 def _gather_rows(color_table, velocity_table, index, masses, *, times, height, width, sampling):
-    base, x, y = _coordinates(index, height, width, color_table.dtype)
-    v = velocity_table[index]
-    out = jnp.zeros((index.shape[0], color_table.shape[1]), dtype=color_table.dtype)
+    base, x, y = _coordinates(index, height, width, color_table.dtype)  # float32 for a half image
+    v = velocity_table[index].astype(x.dtype)
+    out = jnp.zeros((index.shape[0], color_table.shape[1]), dtype=x.dtype)
     for k, tau in enumerate(times):
         out = out + masses[k] * _sample_rows(color_table, base, x - tau * v[:, 0], y - tau * v[:, 1], height, width, sampling)
     return out
@@ -157,9 +167,10 @@ def adaptive_gather(color: Array, velocity: Array, classes: tuple[int, ...], win
     if not found:
         return color
     masses = []
+    wide = position_dtype(color.dtype)
     for count, *_ in found:
-        mass = stratum_weights(window, jnp.asarray(gather_tap_times(count), dtype=color.dtype), 1.0 / count, jnp)
-        masses.append((mass / mass.sum()).astype(color.dtype))
+        mass = stratum_weights(widen_window(window, wide), jnp.asarray(gather_tap_times(count), dtype=wide), 1.0 / count, jnp)
+        masses.append((mass / mass.sum()).astype(wide))
     counts = tuple(f[0] for f in found)
     run = _gather_compacted_jit if sum(f[3] for f in found) >= JIT_MIN_PIXELS else _gather_compacted
     return run(color, velocity, tuple(masses), tuple(f[1] for f in found), tuple(f[2] for f in found), counts=counts, sampling=sampling)
@@ -170,24 +181,26 @@ def _reconstruct_rows(
 ):
     from jax_impl._reconstruct import _at_least
 
+    # Positions, tap offsets, weights and sums in float32 for a half image (as _reconstruct).
     dtype = buffers.dtype
+    wide = position_dtype(dtype)
+    window = widen_window(window, wide)
     tiles_y, tiles_x = tiles
     base, x, y = _coordinates(index, height, width, dtype)
-    tile_index = (base // (height * width)) * (tiles_y * tiles_x) + (y.astype(jnp.int32) // tile) * tiles_x + x.astype(jnp.int32) // tile
-    v_n = neighbor_table[tile_index]
+    v_n = neighbor_table[_tile_index(index, height, width, tile, tiles_y, tiles_x)].astype(wide)
     speed_n = _safe_length(v_n)
-    own = buffers[index]
+    own = buffers[index].astype(wide)
     c_x, v_x, z_x = own[:, :channels], own[:, channels : channels + 2], own[:, channels + 2 :]
     length_x = _safe_length(v_x)
     speed_x = _at_least(length_x, min_radius)
-    j = jitter_table[index if jitter_per_image else index % (height * width)]
+    j = jitter_table[index if jitter_per_image else index % (height * width)].astype(wide)
     x, y = x[:, None], y[:, None]
-    weight = (shutter_factor(window, jnp.zeros((), dtype=dtype), count, jnp) / speed_x).astype(dtype)
+    weight = (shutter_factor(window, jnp.zeros((), dtype=wide), count, jnp) / speed_x).astype(wide)
     total = weight * c_x
     for k in range(count):
         if k == (count - 1) // 2:
             continue
-        t = reconstruct_tap_time(k, j, count).astype(dtype)
+        t = reconstruct_tap_time(k, j, count).astype(wide)
         use_own = directions == "neighbor_and_own" and k % 2 == 1
         direction, speed = (v_x, length_x) if use_own else (v_n, speed_n)
         tap_x = x + direction[:, :1] * t
@@ -204,8 +217,8 @@ def _reconstruct_rows(
             + _soft_depth_compare(z_y, z_x, soft_z_extent) * _cone(distance, speed_x)
             + _cylinder(distance, speed_y) * _cylinder(distance, speed_x) * 2.0
         ) * shutter_factor(window, -t, count, jnp)
-        weight = weight + alpha.astype(dtype)
-        total = total + (alpha * c_y).astype(dtype)
+        weight = weight + alpha.astype(wide)
+        total = total + (alpha * c_y).astype(wide)
     out = total / weight
     if early_out:
         out = jnp.where(speed_n <= EPSILON + 0.5, c_x, out)

@@ -14,7 +14,7 @@ from diffblur.taps import gather_tap_times, stratum_weights
 from jax_impl import _checks
 from jax_impl._primitives import _safe_length
 from jax_impl._pyramid import Pyramid
-from jax_impl._sampling import pixel_grid, sample
+from jax_impl._sampling import pixel_grid, position_dtype, sample, widen_window
 
 
 def gather_blur(
@@ -72,17 +72,20 @@ def gather_blur(
         from jax_impl._adaptive import adaptive_gather
 
         return adaptive_gather(color, velocity, classes, window, sampling)
+    # Positions, tap offsets, weights and the sum in float32 for a half image (its dtype else).
+    wide = position_dtype(color.dtype)
     times = gather_tap_times(samples)
-    masses = stratum_weights(window, jnp.asarray(times, dtype=color.dtype), 1.0 / samples, jnp)
-    masses = (masses / masses.sum()).astype(color.dtype)
+    masses = stratum_weights(widen_window(window, wide), jnp.asarray(times, dtype=wide), 1.0 / samples, jnp)
+    masses = (masses / masses.sum()).astype(wide)
     _, _, height, width = color.shape
     x, y = pixel_grid(height, width, color.dtype)
+    velocity = velocity.astype(wide)
     read = lambda px, py: sample(color, px, py, sampling)  # noqa: E731
     if pyramid:
         levels = Pyramid(color)
         lod = levels.level_of_detail(2.0 * _safe_length(velocity)[:, 0] / samples)
         read = lambda px, py: levels.sample(px, py, lod)  # noqa: E731
-    out = jnp.zeros_like(color)
+    out = jnp.zeros_like(color, dtype=wide)
     for k, tau in enumerate(times):
         out = out + masses[k] * read(x - tau * velocity[:, 0], y - tau * velocity[:, 1])
-    return out
+    return out.astype(color.dtype)

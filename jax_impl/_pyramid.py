@@ -35,6 +35,7 @@ class Pyramid:
         return jnp.take_along_axis(self.atlas, flat, axis=2).reshape(batch, channels, *index.shape[1:])
 
     def _read(self, level: Array, x: Array, y: Array) -> Array:
+        """Bilinear at level `level`, in x's dtype (float32 positions for a half image)."""
         width, height, offset = self.widths[level], self.heights[level], self.offsets[level]
         dtype = x.dtype
         scale = jnp.exp2(level.astype(dtype))
@@ -46,17 +47,19 @@ class Pyramid:
         x0 = jax.lax.stop_gradient(jnp.floor(x))
         y0 = jax.lax.stop_gradient(jnp.floor(y))
         fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-        column0, row0 = x0.astype(jnp.int32), y0.astype(jnp.int32)
+        column0, row0 = jnp.minimum(x0.astype(jnp.int32), width - 1), jnp.minimum(y0.astype(jnp.int32), height - 1)
         column1 = jnp.minimum(column0 + 1, width - 1)
         row1 = jnp.minimum(row0 + 1, height - 1)
-        top_left = self._gather(offset + row0 * width + column0)
-        bottom_left = self._gather(offset + row1 * width + column0)
-        top = top_left + fx * (self._gather(offset + row0 * width + column1) - top_left)
-        bottom = bottom_left + fx * (self._gather(offset + row1 * width + column1) - bottom_left)
+        read = lambda index: self._gather(index).astype(dtype)  # noqa: E731
+        top_left = read(offset + row0 * width + column0)
+        bottom_left = read(offset + row1 * width + column0)
+        top = top_left + fx * (read(offset + row0 * width + column1) - top_left)
+        bottom = bottom_left + fx * (read(offset + row1 * width + column1) - bottom_left)
         return top + fy * (bottom - top)
 
     def sample(self, x: Array, y: Array, lod: Array) -> Array:
-        """(B, C, H', W') at image points x, y (B, H', W') and levels of detail lod (B, H', W')."""
+        """(B, C, H', W') at image points x, y (B, H', W') and levels of detail lod (B, H', W'), in
+        x's dtype."""
         low = jnp.minimum(jax.lax.stop_gradient(jnp.floor(lod)).astype(jnp.int32), self.count - 1)
         high = jnp.minimum(low + 1, self.count - 1)
         fraction = (lod - low.astype(lod.dtype))[:, None]

@@ -30,7 +30,7 @@ from jax_impl._primitives import (
     tile_max,
 )
 from jax_impl._pyramid import Pyramid
-from jax_impl._sampling import pixel_grid, sample
+from jax_impl._sampling import pixel_grid, position_dtype, sample, widen_window
 
 
 def _at_least(speed, floor: float):
@@ -147,14 +147,20 @@ def reconstruct(
 
 def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, sampling, window, early_out, directions, min_radius, *, pyramid=False):
     _, channels, height, width = color.shape
+    # Positions, tap offsets, the classifiers' weights and the sums in float32 for a half image (in
+    # its dtype else); the buffers read stay in the image's dtype, the values read are widened.
+    wide = position_dtype(color.dtype)
+    window = widen_window(window, wide)
     neighbors = neighbor_max(tile_max(velocity, tile))
-    v_n = jnp.repeat(jnp.repeat(neighbors, tile, axis=2), tile, axis=3)[:, :, :height, :width]
+    v_n = jnp.repeat(jnp.repeat(neighbors, tile, axis=2), tile, axis=3)[:, :, :height, :width].astype(wide)
     speed_n = _safe_length(v_n)
-    length_x = _safe_length(velocity)  # the tap offset along V[X] is |t| |V[X]|
+    own_velocity = velocity.astype(wide)
+    length_x = _safe_length(own_velocity)  # the tap offset along V[X] is |t| |V[X]|
     speed_x = _at_least(length_x, min_radius)  # the classifiers' speed, floored as the paper's buffer
     x, y = pixel_grid(height, width, color.dtype)
     x, y = x[:, None], y[:, None]
     buffers = jnp.concatenate([color, velocity, depth], axis=1)  # read C, V and Z at a tap in one gather
+    jitter, wide_depth = jitter.astype(wide), depth.astype(wide)
     levels = Pyramid(color) if pyramid else None
 
     taps = jnp.asarray([k for k in range(samples) if k != (samples - 1) // 2], dtype=jnp.int32)
@@ -165,7 +171,7 @@ def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, s
     @jax.checkpoint
     def tap(k, buffers, depth, v_n, speed_n, velocity, length_x, speed_x, jitter):
         """Tap k's weight alpha and alpha * C[Y], (B, 1, H, W) and (B, C, H, W)."""
-        t = reconstruct_tap_time(k.astype(color.dtype), jitter, samples).astype(color.dtype)
+        t = reconstruct_tap_time(k.astype(wide), jitter, samples).astype(wide)
         if directions == "neighbor_and_own":
             own = k % 2 == 1
             direction, speed = jnp.where(own, velocity, v_n), jnp.where(own, length_x, speed_n)
@@ -187,24 +193,21 @@ def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, s
             + _soft_depth_compare(z_y, depth, soft_z_extent) * _cone(distance, speed_x)  # any Y behind blurry X
             + _cylinder(distance, speed_y) * _cylinder(distance, speed_x) * 2.0  # both blurry
         ) * shutter_factor(window, -t, samples, jnp)
-        return alpha.astype(color.dtype), (alpha * c_y).astype(color.dtype)
+        return alpha.astype(wide), (alpha * c_y).astype(wide)
 
     def accumulate(carry, k):
         weight, total = carry
-        alpha, contribution = tap(k, buffers, depth, v_n, speed_n, velocity, length_x, speed_x, jitter)
+        alpha, contribution = tap(k, buffers, wide_depth, v_n, speed_n, own_velocity, length_x, speed_x, jitter)
         return (weight + alpha, total + contribution), None
 
-    center = shutter_factor(window, jnp.zeros((), dtype=color.dtype), samples, jnp)
-    weight = (center / speed_x).astype(color.dtype)
-    total = weight * color
+    center = shutter_factor(window, jnp.zeros((), dtype=wide), samples, jnp)
+    weight = (center / speed_x).astype(wide)
+    total = weight * color.astype(wide)
     if samples > 1:
         (weight, total), _ = jax.lax.scan(accumulate, (weight, total), taps)
-    if weight.dtype in (jnp.float16, jnp.bfloat16):
-        # float32 for the half types: the backward divides by weight**2, and a weight of 1 / |V|
-        # (1e-4 at 1e4 px) squares to 0 in float16, an infinite gradient.
-        out = (total.astype(jnp.float32) / weight.astype(jnp.float32)).astype(color.dtype)
-    else:
-        out = total / weight
+    # In float32 for the half types (weight and total are): the backward divides by weight**2, and
+    # a weight of 1 / |V| (1e-4 at 1e4 px) squares to 0 in float16, an infinite gradient.
+    out = total / weight
     if early_out:
-        out = jnp.where(speed_n <= EPSILON + 0.5, color, out)
+        out = jnp.where(speed_n <= EPSILON + 0.5, color.astype(wide), out)
     return out.astype(color.dtype)

@@ -35,7 +35,7 @@ from diffblur.conventions import DEPTH_CHANNELS, VECTOR_CHANNELS
 from diffblur.shutters import ShutterWindow, get_shutter
 from jax_impl import _checks
 from jax_impl._primitives import _soft_depth_compare
-from jax_impl._sampling import pixel_grid
+from jax_impl._sampling import pixel_grid, position_dtype, widen_window
 
 #: Points are splatted in chunks of about this many pixel-points (B H W x points of the chunk): one
 #: scatter-add per chunk. With more than one chunk the backward recomputes each chunk's splats
@@ -150,8 +150,6 @@ def _splat(
         weight = weight * (2.0 * _safe_hypot(vx, vy))
     x0, y0 = jax.lax.stop_gradient(jnp.floor(px)), jax.lax.stop_gradient(jnp.floor(py))
     fx, fy = px - x0, py - y0
-    if x0.dtype in (jnp.float16, jnp.bfloat16):  # the bound W - 1 rounds in bfloat16 beyond 256 px
-        x0, y0 = x0.astype(jnp.float32), y0.astype(jnp.float32)
     # Points with a corner in the image have their top-left corner in the padded image.
     near = (x0 >= -1) & (x0 <= width - 1) & (y0 >= -1) & (y0 <= height - 1)
     weight = jnp.where(near, weight, 0.0)
@@ -163,7 +161,7 @@ def _splat(
     bilinear = jnp.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
     padded_depth = jnp.pad(depth, ((0, 0), (0, 0), (1, 1), (1, 1)), mode="edge")
     destination_depth = padded_depth.reshape(-1)[index].reshape(bilinear.shape)
-    in_front = _soft_depth_compare(destination_depth, depth[None, None, :, 0], extent)
+    in_front = _soft_depth_compare(destination_depth, depth[None, None, :, 0], extent).astype(bilinear.dtype)
     omega = bilinear * in_front * weight[None]
     values = (omega.reshape(4 * points, -1, 1) * rows[None]).reshape(-1, rows.shape[1])
     return jnp.zeros((padded_depth.size, rows.shape[1]), dtype=rows.dtype).at[index].add(values)
@@ -341,14 +339,17 @@ def bezier_scatter(
     depth = _finite_values("depth", _positive_values("depth", depth))
     given = {name: _finite_values(name, value) for name, value in given.items()}
 
+    # Positions, offsets, splat weights and the sums in float32 for a half image (its dtype else).
+    wide = position_dtype(color.dtype)
+    given = {name: value.astype(wide) for name, value in given.items()}
     if samples is None:
         x, y = pixel_grid(color.shape[2], color.shape[3], color.dtype)
         samples = point_count(_longest(kind, _terms(kind, degree, given), x[None], y[None]), max_samples)
     if has_constant_parameters(window):
-        masses = jnp.asarray(constant_masses(window, samples), dtype=color.dtype)
+        masses = jnp.asarray(constant_masses(window, samples), dtype=wide)
     else:  # a shape parameter being fitted: the masses carry its gradient
-        times = jnp.asarray(point_times(samples), dtype=color.dtype)
-        masses = point_masses(window, times, samples, jnp).astype(color.dtype)
+        times = jnp.asarray(point_times(samples), dtype=wide)
+        masses = point_masses(widen_window(window, wide), times, samples, jnp).astype(wide)
     return _scatter(
         color,
         depth,
@@ -385,8 +386,10 @@ def _scatter(
     background_weight: float,
     fill: str,
 ) -> Array:
-    """The scatter after the checks (jitted, so that eager calls run one compiled program)."""
+    """The scatter after the checks (jitted, so that eager calls run one compiled program); `given`
+    and `masses` in `position_dtype(color.dtype)`, as the sums."""
     batch, channels, height, width = color.shape
+    wide = position_dtype(color.dtype)
     samples = masses.shape[0]
     x, y = pixel_grid(height, width, color.dtype)
     terms = _terms(kind, degree, given)
@@ -398,8 +401,8 @@ def _scatter(
         moving = jnp.stack([jnp.any(v != 0, axis=1) for v in offsets]).any(axis=0)
 
     # Rows of [color, 1] per source pixel: one scatter-add per point sums colour and weight together.
-    rows = jnp.concatenate([color, jnp.ones_like(depth)], axis=1).transpose(0, 2, 3, 1).reshape(-1, channels + 1)
-    times = jnp.asarray(point_times(samples), dtype=color.dtype)
+    rows = jnp.concatenate([color, jnp.ones_like(depth)], axis=1).transpose(0, 2, 3, 1).reshape(-1, channels + 1).astype(wide)
+    times = jnp.asarray(point_times(samples), dtype=wide)
     chunk = max(1, _CHUNK_PIXEL_POINTS // rows.shape[0])
     splat = functools.partial(_splat, paper, kind)
     fixed = (terms, x[None], y[None], rows, depth, extent, moving)
@@ -414,15 +417,15 @@ def _scatter(
         times = jnp.concatenate([times, jnp.zeros(pad, dtype=times.dtype)]).reshape(count, chunk)
         masses = jnp.concatenate([masses, jnp.zeros(pad, dtype=masses.dtype)]).reshape(count, chunk)
         step = jax.checkpoint(lambda total, part: (total + splat(*part, *fixed), None))
-        start = jnp.zeros((batch * (height + 2) * (width + 2), channels + 1), dtype=color.dtype)
+        start = jnp.zeros((batch * (height + 2) * (width + 2), channels + 1), dtype=wide)
         accumulated, _ = jax.lax.scan(step, start, (times, masses))
 
     accumulated = accumulated.reshape(batch, height + 2, width + 2, channels + 1)[:, 1:-1, 1:-1].transpose(0, 3, 1, 2)
     splatted, alpha = accumulated[:, :channels], accumulated[:, channels:]
     if background is None:
         background = color if fill == "color" else _still_fill(color, jnp.logical_not(moving)[:, None].astype(color.dtype))
-    fill = jnp.where(moving[:, None], background, color)
+    fill = jnp.where(moving[:, None], background, color).astype(wide)
     if paper:
-        return (splatted + background_weight * fill) / (alpha + background_weight)
+        return ((splatted + background_weight * fill) / (alpha + background_weight)).astype(color.dtype)
     uncovered = jnp.where(alpha < 1, 1.0 - alpha, 0.0)
-    return (splatted + uncovered * fill) / jnp.where(alpha > 1, alpha, 1.0)
+    return ((splatted + uncovered * fill) / jnp.where(alpha > 1, alpha, 1.0)).astype(color.dtype)

@@ -3,6 +3,8 @@ warp-and-blend (definitions in `diffblur._warp_options`)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
@@ -21,7 +23,7 @@ from diffblur._warp_options import (
 from diffblur.conventions import VECTOR_CHANNELS
 from diffblur.shutters import ShutterWindow
 from jax_impl import _checks
-from jax_impl._sampling import pixel_grid, sample
+from jax_impl._sampling import pixel_grid, position_dtype, sample, widen_window
 
 
 def _vector_field(name: str, value: object, color: Array) -> Array:
@@ -76,10 +78,14 @@ def accumulate_warps(
     else:
         offset_prev = _vector_field("offset_prev", offset_prev, color)
         offset_next = _vector_field("offset_next", offset_next, color)
-    masses = [m.astype(color.dtype) for m in instant_masses(o, jnp, dtype=color.dtype)]
+    # Positions, offsets, weights and the sum in float32 for a half image (its dtype else).
+    wide = position_dtype(color.dtype)
+    velocity, offset_prev, offset_next = (None if v is None else v.astype(wide) for v in (velocity, offset_prev, offset_next))
+    o = dataclasses.replace(o, window=widen_window(o.window, wide))
+    masses = [m.astype(wide) for m in instant_masses(o, jnp, dtype=wide)]
     _, _, height, width = color.shape
     x, y = pixel_grid(height, width, color.dtype)
-    out = jnp.zeros_like(color)
+    out = jnp.zeros_like(color, dtype=wide)
     for t, mass in zip(o.times, masses):
         p = path_offset(t, velocity, offset_prev, offset_next)
         out = out + mass * sample(color, x - p[:, 0], y - p[:, 1], o.sampling)
@@ -130,12 +136,13 @@ def warp_blend(
     velocity = _vector_field("velocity", velocity, color)
     o = warp_blend_options(iterations=iterations, backward_scale=backward_scale, alpha=alpha, sampling=sampling)
     _, _, height, width = color.shape
+    # Positions, offsets and the blended image in float32 for a half image (its dtype else).
     x, y = pixel_grid(height, width, color.dtype)
-    vx, vy = velocity[:, 0], velocity[:, 1]
-    result = color
+    vx, vy = velocity[:, 0].astype(x.dtype), velocity[:, 1].astype(x.dtype)
+    result = color.astype(x.dtype)
     for scale, a in o.schedule:
         along = sample(result, x + scale * vx, y + scale * vy, o.sampling)
         back = o.backward_scale * scale
         against = sample(result, x - back * vx, y - back * vy, o.sampling)
-        result = ((1.0 - a) * result + (0.5 * a) * (along + against)).astype(color.dtype)
-    return result
+        result = ((1.0 - a) * result + (0.5 * a) * (along + against)).astype(x.dtype)
+    return result.astype(color.dtype)

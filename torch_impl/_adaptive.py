@@ -17,7 +17,7 @@ from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED, class_pixels, still_s
 from diffblur.conventions import EPSILON
 from diffblur.taps import gather_tap_times, reconstruct_tap_time, shutter_factor, stratum_weights
 from torch_impl._primitives import _cone, _cylinder, _safe_length, _soft_depth_compare, neighbor_max, tile_max
-from torch_impl._sampling import _clamp
+from torch_impl._sampling import _clamp, position_dtype
 
 
 def _table(image: Tensor) -> Tensor:
@@ -32,30 +32,39 @@ def _untable(table: Tensor, batch: int, height: int, width: int) -> Tensor:
 
 def _sample_rows(table: Tensor, base: Tensor, x: Tensor, y: Tensor, height: int, width: int, mode: str) -> Tensor:
     """table (B * H * W, K) at positions x, y (P,) of the images starting at rows `base` (P,), as
-    `torch_impl._sampling.sample` reads them (border clamp, a + f (b - a))."""
+    `torch_impl._sampling.sample` reads them (border clamp, a + f (b - a)), in x's dtype."""
     x = _clamp(x, width - 1.0)
     y = _clamp(y, height - 1.0)
     if mode == "nearest":
         column = torch.floor(x + 0.5).long().clamp(max=width - 1)
         row = torch.floor(y + 0.5).long().clamp(max=height - 1)
-        return table[base + row * width + column]
+        return table[base + row * width + column].to(x.dtype)
     x0, y0 = torch.floor(x), torch.floor(y)
     fx, fy = (x - x0).unsqueeze(1), (y - y0).unsqueeze(1)
-    column0, row0 = x0.long(), y0.long()
+    column0, row0 = x0.long().clamp(max=width - 1), y0.long().clamp(max=height - 1)
     column1 = (column0 + 1).clamp(max=width - 1)
     row1 = (row0 + 1).clamp(max=height - 1)
-    top_left = table[base + row0 * width + column0]
-    bottom_left = table[base + row1 * width + column0]
-    top = top_left + fx * (table[base + row0 * width + column1] - top_left)
-    bottom = bottom_left + fx * (table[base + row1 * width + column1] - bottom_left)
+    read = lambda row, column: table[base + row * width + column].to(x.dtype)  # noqa: E731
+    top_left = read(row0, column0)
+    bottom_left = read(row1, column0)
+    top = top_left + fx * (read(row0, column1) - top_left)
+    bottom = bottom_left + fx * (read(row1, column1) - bottom_left)
     return top + fy * (bottom - top)
 
 
 def _coordinates(index: Tensor, height: int, width: int, dtype) -> tuple[Tensor, Tensor, Tensor]:
-    """Row base b * H * W, and x, y (P,) in `dtype`, of flat pixel indices."""
+    """Row base b * H * W, and x, y (P,) in `position_dtype(dtype)`, of flat pixel indices."""
     plane = height * width
     within = index % plane
+    dtype = position_dtype(dtype)
     return index - within, (within % width).to(dtype), (within // width).to(dtype)
+
+
+def _tile_index(index: Tensor, height: int, width: int, tile: int, tiles_y: int, tiles_x: int) -> Tensor:
+    """The flat index b * TH * TW + ty * TW + tx of each flat pixel index's tile, in integers."""
+    plane = height * width
+    within = index % plane
+    return (index // plane) * (tiles_y * tiles_x) + (within // width // tile) * tiles_x + (within % width) // tile
 
 
 def _pixel_counts(counts: Tensor, tile: int, height: int, width: int) -> Tensor:
@@ -98,14 +107,14 @@ def adaptive_gather(color: Tensor, velocity: Tensor, classes: tuple[int, ...], w
 
     def run(index: Tensor, count: int) -> Tensor:
         times = gather_tap_times(count)
-        masses = stratum_weights(window, torch.as_tensor(times, dtype=color.dtype, device=color.device), 1.0 / count, torch)
+        base, x, y = _coordinates(index, height, width, color.dtype)  # float32 for a half image
+        masses = stratum_weights(window, torch.as_tensor(times, dtype=x.dtype, device=color.device), 1.0 / count, torch)
         masses = masses / masses.sum()
-        base, x, y = _coordinates(index, height, width, color.dtype)
-        v = velocity_table[index]
+        v = velocity_table[index].to(x.dtype)
         out = 0.0
         for k, tau in enumerate(times):
             out = out + masses[k] * _sample_rows(color_table, base, x - tau * v[:, 0], y - tau * v[:, 1], height, width, sampling)
-        return out
+        return out.to(color.dtype)
 
     return _compacted(color, counts, classes, tile, run)
 
@@ -130,17 +139,18 @@ def adaptive_reconstruct(color, velocity, depth, jitter, o) -> Tensor:
     tiles_y, tiles_x = neighbors.shape[2:]
 
     def run(index: Tensor, count: int) -> Tensor:
+        # Positions, tap offsets, weights and sums in float32 for a half image (as _reconstruct).
         base, x, y = _coordinates(index, height, width, color.dtype)
-        tile_index = (base // (height * width)) * (tiles_y * tiles_x) + (y.long() // tile) * tiles_x + x.long() // tile
-        v_n = neighbor_table[tile_index]
+        wide = x.dtype
+        v_n = neighbor_table[_tile_index(index, height, width, tile, tiles_y, tiles_x)].to(wide)
         speed_n = _safe_length(v_n)
         own = buffers[index]
-        c_x, v_x, z_x = own[:, :channels], own[:, channels : channels + 2], own[:, channels + 2 :]
+        c_x, v_x, z_x = own[:, :channels], own[:, channels : channels + 2].to(wide), own[:, channels + 2 :]
         length_x = _safe_length(v_x)
         speed_x = _at_least(length_x, o.min_radius)
-        j = jitter_table[index if jitter.shape[0] == batch else index % (height * width)]
+        j = jitter_table[index if jitter.shape[0] == batch else index % (height * width)].to(wide)
         x, y = x[:, None], y[:, None]
-        weight = shutter_factor(o.window, torch.zeros((), dtype=color.dtype, device=color.device), count, torch) / speed_x
+        weight = shutter_factor(o.window, torch.zeros((), dtype=wide, device=color.device), count, torch) / speed_x
         total = weight * c_x
         for k in range(count):
             if k == (count - 1) // 2:
@@ -166,7 +176,7 @@ def adaptive_reconstruct(color, velocity, depth, jitter, o) -> Tensor:
             total = total + alpha * c_y
         out = total / weight
         if o.early_out:
-            out = torch.where(speed_n <= EPSILON + 0.5, c_x, out)
-        return out
+            out = torch.where(speed_n <= EPSILON + 0.5, c_x.to(wide), out)
+        return out.to(color.dtype)
 
     return _compacted(color, counts, o.classes, tile, run)

@@ -15,7 +15,7 @@ from diffblur.taps import gather_tap_times, stratum_weights
 from torch_impl import _checks
 from torch_impl._primitives import _safe_length
 from torch_impl._pyramid import Pyramid
-from torch_impl._sampling import pixel_grid, sample
+from torch_impl._sampling import pixel_grid, position_dtype, sample
 
 
 def gather_blur(
@@ -73,17 +73,20 @@ def gather_blur(
         from torch_impl._adaptive import adaptive_gather
 
         return adaptive_gather(color, velocity, classes, window, sampling)
+    # Positions, tap offsets, weights and the sum in float32 for a half image (its dtype else).
+    wide = position_dtype(color.dtype)
     times = gather_tap_times(samples)
-    masses = stratum_weights(window, torch.as_tensor(times, dtype=color.dtype, device=color.device), 1.0 / samples, torch)
+    masses = stratum_weights(window, torch.as_tensor(times, dtype=wide, device=color.device), 1.0 / samples, torch)
     masses = masses / masses.sum()
     _, _, height, width = color.shape
     x, y = pixel_grid(height, width, color)
+    velocity = velocity.to(wide)
     read = lambda px, py: sample(color, px, py, sampling)  # noqa: E731
     if pyramid:
         levels = Pyramid(color)
         lod = levels.level_of_detail(2.0 * _safe_length(velocity)[:, 0] / samples)
         read = lambda px, py: levels.sample(px, py, lod)  # noqa: E731
-    out = torch.zeros_like(color)
+    out = torch.zeros_like(color, dtype=wide)
     for k, tau in enumerate(times):
         out = out + masses[k] * read(x - tau * velocity[:, 0], y - tau * velocity[:, 1])
-    return out
+    return out.to(color.dtype)

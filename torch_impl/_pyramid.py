@@ -36,6 +36,7 @@ class Pyramid:
         return torch.gather(self.atlas, 2, flat).reshape(batch, channels, *index.shape[1:])
 
     def _read(self, level: Tensor, x: Tensor, y: Tensor) -> Tensor:
+        """Bilinear at level `level`, in x's dtype (float32 positions for a half image)."""
         width, height, offset = self.widths[level], self.heights[level], self.offsets[level]
         scale = torch.exp2(level.to(x.dtype))
         x = torch.where(level == 0, x, (x + 0.5) / scale - 0.5)
@@ -45,17 +46,19 @@ class Pyramid:
         y = torch.where(y < 0, 0.0, torch.where(y > high_y, high_y, y))
         x0, y0 = torch.floor(x), torch.floor(y)
         fx, fy = (x - x0).unsqueeze(1), (y - y0).unsqueeze(1)
-        column0, row0 = x0.long(), y0.long()
+        column0, row0 = torch.minimum(x0.long(), width - 1), torch.minimum(y0.long(), height - 1)
         column1 = torch.minimum(column0 + 1, width - 1)
         row1 = torch.minimum(row0 + 1, height - 1)
-        top_left = self._gather(offset + row0 * width + column0)
-        bottom_left = self._gather(offset + row1 * width + column0)
-        top = top_left + fx * (self._gather(offset + row0 * width + column1) - top_left)
-        bottom = bottom_left + fx * (self._gather(offset + row1 * width + column1) - bottom_left)
+        read = lambda index: self._gather(index).to(x.dtype)  # noqa: E731
+        top_left = read(offset + row0 * width + column0)
+        bottom_left = read(offset + row1 * width + column0)
+        top = top_left + fx * (read(offset + row0 * width + column1) - top_left)
+        bottom = bottom_left + fx * (read(offset + row1 * width + column1) - bottom_left)
         return top + fy * (bottom - top)
 
     def sample(self, x: Tensor, y: Tensor, lod: Tensor) -> Tensor:
-        """(B, C, H', W') at image points x, y (B, H', W') and levels of detail lod (B, H', W')."""
+        """(B, C, H', W') at image points x, y (B, H', W') and levels of detail lod (B, H', W'), in
+        x's dtype."""
         low = torch.floor(lod).long().clamp(max=self.count - 1)
         high = (low + 1).clamp(max=self.count - 1)
         fraction = (lod - low.to(lod.dtype)).unsqueeze(1)

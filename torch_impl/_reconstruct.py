@@ -32,7 +32,7 @@ from torch_impl._primitives import (
     tile_max,
 )
 from torch_impl._pyramid import Pyramid
-from torch_impl._sampling import pixel_grid, sample
+from torch_impl._sampling import pixel_grid, position_dtype, sample
 
 
 def _at_least(speed, floor: float):
@@ -148,14 +148,19 @@ def reconstruct(
 
 def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, sampling, window, early_out, directions, min_radius, *, pyramid=False):
     _, channels, height, width = color.shape
+    # Positions, tap offsets, the classifiers' weights and the sums in float32 for a half image (in
+    # its dtype else); the buffers read stay in the image's dtype, the values read are widened.
+    wide = position_dtype(color.dtype)
     neighbors = neighbor_max(tile_max(velocity, tile))
-    v_n = neighbors.repeat_interleave(tile, dim=2).repeat_interleave(tile, dim=3)[:, :, :height, :width]
+    v_n = neighbors.repeat_interleave(tile, dim=2).repeat_interleave(tile, dim=3)[:, :, :height, :width].to(wide)
     speed_n = _safe_length(v_n)
-    length_x = _safe_length(velocity)  # the tap offset along V[X] is |t| |V[X]|
+    own_velocity = velocity.to(wide)
+    length_x = _safe_length(own_velocity)  # the tap offset along V[X] is |t| |V[X]|
     speed_x = _at_least(length_x, min_radius)  # the classifiers' speed, floored as the paper's buffer
     x, y = pixel_grid(height, width, color)
     x, y = x.unsqueeze(1), y.unsqueeze(1)
     buffers = torch.cat([color, velocity, depth], dim=1)  # read C, V and Z at a tap in one gather
+    jitter = jitter.to(wide)
     levels = Pyramid(color) if pyramid else None
 
     def tap(k: int, buffers, depth, direction, speed, speed_x, jitter):
@@ -182,14 +187,14 @@ def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, s
     # Recompute each tap in the backward pass instead of keeping its full-resolution intermediates:
     # the backward's memory then stays O(pixels), not O(pixels x taps).
     recompute = torch.is_grad_enabled() and any(a.requires_grad for a in (color, velocity, depth))
-    center = shutter_factor(window, torch.zeros((), dtype=color.dtype, device=color.device), samples, torch)
+    center = shutter_factor(window, torch.zeros((), dtype=wide, device=color.device), samples, torch)
     weight = center / speed_x
     total = weight * color
     for k in range(samples):
         if k == (samples - 1) // 2:
             continue
         own = directions == "neighbor_and_own" and k % 2 == 1
-        direction, speed = (velocity, length_x) if own else (v_n, speed_n)
+        direction, speed = (own_velocity, length_x) if own else (v_n, speed_n)
         args = (buffers, depth, direction, speed, speed_x, jitter)
         if recompute:
             alpha, contribution = checkpoint(tap, k, *args, use_reentrant=False)
@@ -197,12 +202,9 @@ def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, s
             alpha, contribution = tap(k, *args)
         weight = weight + alpha
         total = total + contribution
-    if weight.dtype in (torch.float16, torch.bfloat16):
-        # float32 for the half types: the backward divides by weight**2, and a weight of 1 / |V|
-        # (1e-4 at 1e4 px) squares to 0 in float16, an infinite gradient.
-        out = (total.float() / weight.float()).to(color.dtype)
-    else:
-        out = total / weight
+    # In float32 for the half types (weight and total are): the backward divides by weight**2, and
+    # a weight of 1 / |V| (1e-4 at 1e4 px) squares to 0 in float16, an infinite gradient.
+    out = total / weight
     if early_out:
-        out = torch.where(speed_n <= EPSILON + 0.5, color, out)
-    return out
+        out = torch.where(speed_n <= EPSILON + 0.5, color.to(wide), out)
+    return out.to(color.dtype)

@@ -33,7 +33,7 @@ from diffblur.conventions import DEPTH_CHANNELS, VECTOR_CHANNELS
 from diffblur.shutters import ShutterWindow, get_shutter
 from torch_impl import _checks
 from torch_impl._primitives import _soft_depth_compare
-from torch_impl._sampling import pixel_grid
+from torch_impl._sampling import pixel_grid, position_dtype
 
 #: Points are splatted in chunks of about this many pixel-points (B H W x points of the chunk): one
 #: scatter-add per chunk. With more than one chunk the backward recomputes each chunk's splats
@@ -133,8 +133,6 @@ def _splat(
         weight = weight * (2.0 * _safe_hypot(vx, vy))
     x0, y0 = torch.floor(px), torch.floor(py)
     fx, fy = px - x0, py - y0
-    if x0.dtype in (torch.float16, torch.bfloat16):  # the bound W - 1 rounds in bfloat16 beyond 256 px
-        x0, y0 = x0.float(), y0.float()
     # Points with a corner in the image have their top-left corner in the padded image.
     near = (x0 >= -1) & (x0 <= width - 1) & (y0 >= -1) & (y0 <= height - 1)
     weight = torch.where(near, weight, 0.0)
@@ -149,7 +147,7 @@ def _splat(
     in_front = _soft_depth_compare(destination_depth, depth[None, None, :, 0], extent)
     omega = bilinear * in_front * weight[None]
     values = (omega.reshape(4 * points, -1, 1) * rows[None]).reshape(-1, rows.shape[1])
-    return torch.zeros(padded_depth.numel(), rows.shape[1], dtype=rows.dtype, device=rows.device).index_add(0, index, values)
+    return torch.zeros(padded_depth.numel(), rows.shape[1], dtype=values.dtype, device=rows.device).index_add(0, index, values)
 
 
 @torch.compiler.assume_constant_result
@@ -327,16 +325,19 @@ def bezier_scatter(
     for name, value in given.items():
         _finite_values(name, value)
 
+    # Positions, offsets, splat weights and the sums in float32 for a half image (its dtype else).
+    wide = position_dtype(color.dtype)
+    given = {name: value.to(wide) for name, value in given.items()}
     if samples is None:
         if torch.compiler.is_compiling():
             raise ValueError(traced_count_message("torch.compile"))
         x, y = pixel_grid(color.shape[2], color.shape[3], color)
         samples = point_count(_longest(kind, _terms(kind, degree, given), x[None], y[None]), max_samples)
     if has_constant_parameters(window):
-        masses = torch.as_tensor(_constant_masses(window, samples), dtype=color.dtype, device=color.device)
+        masses = torch.as_tensor(_constant_masses(window, samples), dtype=wide, device=color.device)
     else:  # a shape parameter being fitted: the masses carry its gradient
-        times = torch.as_tensor(point_times(samples), dtype=color.dtype, device=color.device)
-        masses = point_masses(window, times, samples, torch)
+        times = torch.as_tensor(point_times(samples), dtype=wide, device=color.device)
+        masses = point_masses(window, times, samples, torch).to(wide)
     return _scatter(
         color,
         depth,
@@ -372,8 +373,9 @@ def _scatter(
     background_weight: float,
     fill: str,
 ) -> Tensor:
-    """The scatter after the checks."""
+    """The scatter after the checks: `given` and `masses` in `position_dtype(color.dtype)`."""
     batch, channels, height, width = color.shape
+    wide = position_dtype(color.dtype)
     samples = masses.shape[0]
     x, y = pixel_grid(height, width, color)
     terms = _terms(kind, degree, given)
@@ -386,11 +388,11 @@ def _scatter(
 
     # Rows of [color, 1] per source pixel: one scatter-add per point sums colour and weight together.
     rows = torch.cat([color, torch.ones_like(depth)], dim=1).permute(0, 2, 3, 1).reshape(-1, channels + 1)
-    times = torch.as_tensor(point_times(samples), dtype=color.dtype, device=color.device)
+    times = torch.as_tensor(point_times(samples), dtype=wide, device=color.device)
     chunk = max(1, _CHUNK_PIXEL_POINTS // rows.shape[0])
     # Under torch.compile the compiler chooses what the backward keeps.
     recompute = chunk < samples and torch.is_grad_enabled() and not torch.compiler.is_compiling()
-    accumulated = torch.zeros(batch * (height + 2) * (width + 2), channels + 1, dtype=color.dtype, device=color.device)
+    accumulated = torch.zeros(batch * (height + 2) * (width + 2), channels + 1, dtype=wide, device=color.device)
     for start in range(0, samples, chunk):
         arguments = (paper, kind, times[start : start + chunk], masses[start : start + chunk], terms, x[None], y[None], rows, depth, extent, moving)
         if recompute:  # keep only the inputs for the backward; each chunk is recomputed there
@@ -404,6 +406,6 @@ def _scatter(
         background = color if fill == "color" else _still_fill(color, (~moving).unsqueeze(1).to(color.dtype))
     fill = torch.where(moving.unsqueeze(1), background, color)
     if paper:
-        return (splatted + background_weight * fill) / (alpha + background_weight)
+        return ((splatted + background_weight * fill) / (alpha + background_weight)).to(color.dtype)
     uncovered = torch.where(alpha < 1, 1.0 - alpha, 0.0)
-    return (splatted + uncovered * fill) / torch.where(alpha > 1, alpha, 1.0)
+    return ((splatted + uncovered * fill) / torch.where(alpha > 1, alpha, 1.0)).to(color.dtype)

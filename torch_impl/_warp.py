@@ -22,7 +22,7 @@ from diffblur._warp_options import (
 from diffblur.conventions import VECTOR_CHANNELS
 from diffblur.shutters import ShutterWindow
 from torch_impl import _checks
-from torch_impl._sampling import pixel_grid, sample
+from torch_impl._sampling import pixel_grid, position_dtype, sample
 
 
 def _vector_field(name: str, value: object, color: Tensor) -> Tensor:
@@ -78,14 +78,17 @@ def accumulate_warps(
     else:
         offset_prev = _vector_field("offset_prev", offset_prev, color)
         offset_next = _vector_field("offset_next", offset_next, color)
-    masses = instant_masses(o, torch, dtype=color.dtype)
+    # Positions, offsets, weights and the sum in float32 for a half image (its dtype else).
+    wide = position_dtype(color.dtype)
+    velocity, offset_prev, offset_next = (None if v is None else v.to(wide) for v in (velocity, offset_prev, offset_next))
+    masses = instant_masses(o, torch, dtype=wide)
     _, _, height, width = color.shape
     x, y = pixel_grid(height, width, color)
-    out = torch.zeros_like(color)
+    out = torch.zeros_like(color, dtype=wide)
     for t, mass in zip(o.times, masses):
         p = path_offset(t, velocity, offset_prev, offset_next)
         out = out + mass * sample(color, x - p[:, 0], y - p[:, 1], o.sampling)
-    return out
+    return out.to(color.dtype)
 
 
 def warp_blend(
@@ -132,12 +135,13 @@ def warp_blend(
     velocity = _vector_field("velocity", velocity, color)
     o = warp_blend_options(iterations=iterations, backward_scale=backward_scale, alpha=alpha, sampling=sampling)
     _, _, height, width = color.shape
+    # Positions, offsets and the blended image in float32 for a half image (its dtype else).
     x, y = pixel_grid(height, width, color)
-    vx, vy = velocity[:, 0], velocity[:, 1]
-    result = color
+    vx, vy = velocity[:, 0].to(x.dtype), velocity[:, 1].to(x.dtype)
+    result = color.to(x.dtype)
     for scale, a in o.schedule:
         along = sample(result, x + scale * vx, y + scale * vy, o.sampling)
         back = o.backward_scale * scale
         against = sample(result, x - back * vx, y - back * vy, o.sampling)
         result = (1.0 - a) * result + (0.5 * a) * (along + against)
-    return result
+    return result.to(color.dtype)
