@@ -85,7 +85,9 @@ def _blur(ctx: Context, velocity: Any, shutter: Any = None) -> Any:
     # Seed 000's taps span S / (S + 1) of the exposure: scale the velocity so the blur spans all of it
     # and the parameters are the scene's (see recover's docstring).
     span = (o["samples"] + 1.0) / o["samples"]
-    return ctx.be.ops.reconstruct(ctx.color, velocity * span, ctx.depth, samples=o["samples"], max_radius=o["max_radius"], shutter=shutter)
+    # JAX's fused reconstruct has reverse-mode gradients only; LM and Dogleg take forward-mode Jacobians.
+    fused = False if ctx.be.name == "jax" and o.get("jac", "fwd") == "fwd" else None
+    return ctx.be.ops.reconstruct(ctx.color, velocity * span, ctx.depth, samples=o["samples"], max_radius=o["max_radius"], shutter=shutter, fused=fused)
 
 
 class Model:

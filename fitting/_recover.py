@@ -226,7 +226,7 @@ def recover(
         for name in ("velocity", "mask", "background", "weight"):
             extras[name] = None if a[name] is None else be.array(a[name])
         extras["ids"] = None if a["ids"] is None else be.ints(a["ids"])
-        options = {"method": method, "samples": samples, "arc_samples": arc_samples, "shutter": window, "max_radius": radius}
+        options = {"method": method, "samples": samples, "arc_samples": arc_samples, "shutter": window, "max_radius": radius, "jac": jac}
         return _models.Context(be, be.array(a["color"]), be.array(a["depth"]), be.array(a["target"]), h, w, 0.5**level, options, extras)
 
     # Start values at full resolution, then down to the coarsest level.

@@ -69,6 +69,7 @@ def reconstruct(
     min_radius: float = DEFAULT_MIN_RADIUS,
     adaptive: bool | tuple[int, ...] = False,
     pyramid: bool = False,
+    fused: bool | None = None,
 ) -> Float[Tensor, "b c h w"]:
     """Seed 000's reconstruction filter: plausible motion blur from color, velocity and depth.
 
@@ -111,6 +112,12 @@ def reconstruct(
             the tap direction v), read the taps' colour from a pre-filtered pyramid level (seed
             001's texture-space blur), trilinearly; depth and velocity stay full resolution.
             Needs "bilinear"; not combined with adaptive yet.
+        fused: run the filter and its backward in one parallel CPU loop (`diffblur._fused`, numba)
+            instead of tensor ops: same result and gradients (tested), 10-30x faster on the CPU.
+            None (default): fused where it applies (CPU, float32/float64, bilinear, box shutter,
+            no pyramid, eager mode, jitter without grad; adaptive sampling included), tensor ops
+            elsewhere. True: fused or a ValueError saying why not. False: always the tensor ops.
+            The fused backward is not differentiable again (no double backward).
 
     Returns:
         (B, C, H, W), color's dtype and device.
@@ -137,6 +144,14 @@ def reconstruct(
         pyramid=pyramid,
     )
     jitter = _jitter_tensor(jitter, color)
+    if fused is not False:
+        from torch_impl._fused import fused_reconstruct, unfused_reason
+
+        reason = unfused_reason(o, color, jitter)
+        if reason is None:
+            return fused_reconstruct(color, velocity, depth, jitter, o)
+        if fused:
+            raise ValueError(f"reconstruct(fused=True) cannot run: {reason}")
     if o.classes is not None:
         from torch_impl._adaptive import adaptive_reconstruct
 

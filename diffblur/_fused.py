@@ -1,0 +1,487 @@
+"""Fused CPU kernels (numba) behind the PyTorch and JAX ops' custom gradient rules.
+
+A tensor framework runs `reconstruct` as ~200 full-resolution elementwise ops per tap; on a 2-core
+CPU that cannot reach the 100 ms target at 1280x720 (BENCHMARKS.md), and JAX's backward is
+dominated by the scatter-add that transposes the bilinear reads. These kernels do the whole filter
+in one parallel loop over pixels, and its hand-written backward in a second one. They take and
+return NumPy arrays, so both backends share them: `torch_impl._fused` wraps them in an
+`autograd.Function`, `jax_impl._fused` in a `custom_vjp` over `pure_callback`.
+
+The pure tensor ops stay the reference: tests compare outputs and gradients of both paths. The
+kernels repeat the pure ops' arithmetic (the same clamps, floors and `where` branches, so the same
+one-sided derivatives at kinks) in float64 scalars, reading and writing the arrays' dtype.
+
+Scope, checked by `reconstruct_unfused_reason`: bilinear sampling, the box shutter, float32 or
+float64, no pyramid. The tap count is per tile (`counts`), which is how adaptive sampling and the
+early-out run here: a tile with count 0 returns the image and costs one copy.
+
+The backward scatters each tap's gradient to the 4 pixels it read, which may be anywhere in the
+image: each thread accumulates into its own full-size buffer, summed at the end, so the backward's
+memory is O(pixels x threads) (2 threads here), never O(pixels x taps).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from diffblur.conventions import CYLINDER_INNER, CYLINDER_OUTER, EPSILON
+
+try:  # numba is a dependency; the guard keeps the pure ops usable where it cannot load.
+    import numba
+except ImportError:  # pragma: no cover - exercised only without numba
+    numba = None
+
+__all__ = ["available", "reconstruct_backward", "reconstruct_forward", "reconstruct_unfused_reason"]
+
+_INVERSE_CYLINDER_SPAN = 1.0 / (CYLINDER_OUTER - CYLINDER_INNER)
+#: Row interleave of the parallel loops: each thread's static share of the rows is spread over the
+#: whole image, so a scene whose motion sits in one band still keeps both cores busy.
+_ROW_INTERLEAVE = 16
+
+
+def available() -> bool:
+    """Whether the fused kernels can run (numba imports)."""
+    return numba is not None
+
+
+def reconstruct_unfused_reason(o: Any, dtype_name: str) -> str | None:
+    """Why `reconstruct` with options `o` (`diffblur.taps.ReconstructOptions`) cannot take the
+    fused path, or None when it can. dtype_name: the image's dtype, as a string."""
+    from diffblur.shutters import Box
+
+    if numba is None:
+        return "numba is not installed"
+    if o.sampling != "bilinear":
+        return f"sampling={o.sampling!r} (the fused kernel is bilinear)"
+    if type(o.window) is not Box:
+        return f"shutter {o.window.name!r} (the fused kernel takes the box shutter)"
+    if o.pyramid:
+        return "pyramid=True"
+    if dtype_name not in ("float32", "float64"):
+        return f"dtype {dtype_name} (the fused kernel takes float32 and float64)"
+    return None
+
+
+def row_order(rows: int) -> np.ndarray:
+    """Rows 0, 16, 32, ..., 1, 17, ...: the order the parallel loops visit the B * H rows in."""
+    return np.argsort(np.arange(rows) % _ROW_INTERLEAVE, kind="stable").astype(np.int64)
+
+
+def _jit(function):
+    if numba is None:  # pragma: no cover
+        return function
+    return numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy", fastmath=True)(function)
+
+
+def _inline(function):
+    if numba is None:  # pragma: no cover
+        return function
+    return numba.njit(inline="always", cache=True, error_model="numpy", fastmath=True)(function)
+
+
+@_inline
+def _length(a, b):
+    squared = a * a + b * b
+    return math.sqrt(squared) if squared > 0.0 else 0.0
+
+
+@_inline
+def _soft_depth_compare(z_a, z_b, extent, inverse_extent):
+    behind = z_b - z_a
+    if behind < 0.0:
+        return 1.0
+    if behind > extent:
+        return 0.0
+    return 1.0 - behind * inverse_extent
+
+
+@_inline
+def _floored_inverse(speed):
+    """1 / max(speed, EPSILON): the classifiers divide by the floored speed; one division per speed."""
+    return 1.0 / (speed if speed >= EPSILON else EPSILON)
+
+
+@_inline
+def _cone(distance, inverse):
+    u = 1.0 - distance * inverse
+    return 0.0 if u < 0.0 else (1.0 if u > 1.0 else u)
+
+
+@_inline
+def _cone_grad(distance, speed, inverse, grad):
+    """d cone / d distance and d cone / d speed, times grad (the pure op's one-sided rules)."""
+    u = 1.0 - distance * inverse
+    if u < 0.0 or u > 1.0:
+        return 0.0, 0.0
+    d_speed = grad * distance * inverse * inverse if speed >= EPSILON else 0.0
+    return -grad * inverse, d_speed
+
+
+@_inline
+def _cylinder(distance, inverse):
+    q = (distance * inverse - CYLINDER_INNER) * _INVERSE_CYLINDER_SPAN
+    q = 0.0 if q < 0.0 else (1.0 if q > 1.0 else q)
+    return 1.0 - q * q * (3.0 - 2.0 * q)
+
+
+@_inline
+def _cylinder_grad(distance, speed, inverse, grad):
+    q = (distance * inverse - CYLINDER_INNER) * _INVERSE_CYLINDER_SPAN
+    if q < 0.0 or q > 1.0:
+        return 0.0, 0.0
+    d_q = grad * (-6.0 * q * (1.0 - q)) * _INVERSE_CYLINDER_SPAN
+    d_speed = -d_q * distance * inverse * inverse if speed >= EPSILON else 0.0
+    return d_q * inverse, d_speed
+
+
+@_inline
+def _bilinear_setup(px, py, width, height):
+    """Corners, fractions and whether the clamp passes the gradient, as `_sampling.sample`."""
+    inside_x = px >= 0.0 and px <= width - 1.0
+    inside_y = py >= 0.0 and py <= height - 1.0
+    cx = 0.0 if px < 0.0 else (width - 1.0 if px > width - 1.0 else px)
+    cy = 0.0 if py < 0.0 else (height - 1.0 if py > height - 1.0 else py)
+    x0 = math.floor(cx)
+    y0 = math.floor(cy)
+    column0 = min(int(x0), width - 1)
+    row0 = min(int(y0), height - 1)
+    return column0, min(column0 + 1, width - 1), row0, min(row0 + 1, height - 1), cx - x0, cy - y0, inside_x, inside_y
+
+
+@_inline
+def _read(buffers, b, channel, row0, row1, column0, column1, fx, fy):
+    """Channel `channel` of the (B, H, W, K) buffers, bilinearly, as `_sampling.sample` (a + f (b - a))."""
+    top_left = np.float64(buffers[b, row0, column0, channel])
+    bottom_left = np.float64(buffers[b, row1, column0, channel])
+    top = top_left + fx * (buffers[b, row0, column1, channel] - top_left)
+    bottom = bottom_left + fx * (buffers[b, row1, column1, channel] - bottom_left)
+    return top + fy * (bottom - top)
+
+
+@_inline
+def _read_slopes(buffers, b, channel, row0, row1, column0, column1, fx, fy):
+    """d read / d fx and d read / d fy of `_read`, and the read itself."""
+    top_left = np.float64(buffers[b, row0, column0, channel])
+    top_right = np.float64(buffers[b, row0, column1, channel])
+    bottom_left = np.float64(buffers[b, row1, column0, channel])
+    bottom_right = np.float64(buffers[b, row1, column1, channel])
+    top = top_left + fx * (top_right - top_left)
+    bottom = bottom_left + fx * (bottom_right - bottom_left)
+    return (1.0 - fy) * (top_right - top_left) + fy * (bottom_right - bottom_left), bottom - top, top + fy * (bottom - top)
+
+
+@_inline
+def _scatter(grads, b, channel, row0, row1, column0, column1, fx, fy, grad):
+    grads[b, row0, column0, channel] += grad * (1.0 - fx) * (1.0 - fy)
+    grads[b, row0, column1, channel] += grad * fx * (1.0 - fy)
+    grads[b, row1, column0, channel] += grad * (1.0 - fx) * fy
+    grads[b, row1, column1, channel] += grad * fx * fy
+
+
+@_jit
+def _interleave(color, velocity, depth, buffers):
+    """(B, C, H, W), (B, 2, H, W), (B, 1, H, W) -> buffers (B, H, W, C + 3): a tap's reads sit together."""
+    batch, channels, height, width = color.shape
+    for row in numba.prange(batch * height):
+        b = row // height
+        y = row % height
+        for x in range(width):
+            for c in range(channels):
+                buffers[b, y, x, c] = color[b, c, y, x]
+            buffers[b, y, x, channels] = velocity[b, 0, y, x]
+            buffers[b, y, x, channels + 1] = velocity[b, 1, y, x]
+            buffers[b, y, x, channels + 2] = depth[b, 0, y, x]
+
+
+@_jit
+def _deinterleave_sum(grads, out):
+    """Sum the (chunks, B, H, W, K) per-chunk gradient buffers into out (B, K, H, W)."""
+    chunks, batch, height, width, channels = grads.shape
+    for row in numba.prange(batch * height):
+        b = row // height
+        y = row % height
+        for x in range(width):
+            for c in range(channels):
+                total = 0.0
+                for chunk in range(chunks):
+                    total += grads[chunk, b, y, x, c]
+                out[b, c, y, x] = total
+
+
+@_jit
+def _reconstruct_forward(buffers, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, chunks, out, weight):
+    batch, height, width, stored = buffers.shape
+    channels = stored - 3
+    jitter_batch = jitter.shape[0]
+    inverse_extent = 1.0 / extent
+    rows = batch * height
+    for chunk in numba.prange(chunks):
+        total = np.empty(channels)
+        for i in range(chunk * rows // chunks, (chunk + 1) * rows // chunks):
+            row = order[i]
+            b = row // height
+            y = row % height
+            jb = b if jitter_batch > 1 else 0
+            for x in range(width):
+                count = counts[b, y // tile, x // tile]
+                if count == 0:
+                    for c in range(channels):
+                        out[b, c, y, x] = buffers[b, y, x, c]
+                    weight[b, y, x] = 0.0
+                    continue
+                nx = np.float64(neighbors[b, 0, y // tile, x // tile])
+                ny = np.float64(neighbors[b, 1, y // tile, x // tile])
+                speed_n = _length(nx, ny)
+                vx = np.float64(buffers[b, y, x, channels])
+                vy = np.float64(buffers[b, y, x, channels + 1])
+                length_x = _length(vx, vy)
+                speed_x = length_x if length_x >= min_radius else min_radius
+                inverse_x = _floored_inverse(speed_x)
+                z_x = np.float64(buffers[b, y, x, channels + 2])
+                j = np.float64(jitter[jb, 0, y, x])
+                w = 1.0 / speed_x
+                for c in range(channels):
+                    total[c] = w * buffers[b, y, x, c]
+                middle = (count - 1) // 2
+                step = 2.0 / (count + 1.0)
+                for k in range(count):
+                    if k == middle:
+                        continue
+                    t = -1.0 + (k + j + 1.0) * step
+                    if own_odd and k % 2 == 1:
+                        dx, dy, speed = vx, vy, length_x
+                    else:
+                        dx, dy, speed = nx, ny, speed_n
+                    column0, column1, row0, row1, fx, fy, _, _ = _bilinear_setup(x + dx * t, y + dy * t, width, height)
+                    v_yx = _read(buffers, b, channels, row0, row1, column0, column1, fx, fy)
+                    v_yy = _read(buffers, b, channels + 1, row0, row1, column0, column1, fx, fy)
+                    z_y = _read(buffers, b, channels + 2, row0, row1, column0, column1, fx, fy)
+                    length_y = _length(v_yx, v_yy)
+                    inverse_y = _floored_inverse(length_y if length_y >= min_radius else min_radius)
+                    distance = abs(t) * speed
+                    alpha = (
+                        _soft_depth_compare(z_x, z_y, extent, inverse_extent) * _cone(distance, inverse_y)
+                        + _soft_depth_compare(z_y, z_x, extent, inverse_extent) * _cone(distance, inverse_x)
+                        + _cylinder(distance, inverse_y) * _cylinder(distance, inverse_x) * 2.0
+                    )
+                    w += alpha
+                    for c in range(channels):
+                        total[c] += alpha * _read(buffers, b, c, row0, row1, column0, column1, fx, fy)
+                for c in range(channels):
+                    out[b, c, y, x] = total[c] / w
+                weight[b, y, x] = w
+
+
+@_jit
+def _reconstruct_backward(buffers, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, out, weight, grad_out, grads, grad_neighbors):
+    """grads: (chunks, B, H, W, C + 3) zeros, one buffer per chunk of rows (C, V, Z gradients
+    interleaved as the buffers); grad_neighbors: (chunks, B, 2, TH, TW) zeros."""
+    batch, height, width, stored = buffers.shape
+    channels = stored - 3
+    jitter_batch = jitter.shape[0]
+    inverse_extent = 1.0 / extent
+    chunks = grads.shape[0]
+    rows = batch * height
+    for chunk in numba.prange(chunks):
+        g_total = np.empty(channels)
+        mine = grads[chunk]
+        for i in range(chunk * rows // chunks, (chunk + 1) * rows // chunks):
+            row = order[i]
+            b = row // height
+            y = row % height
+            jb = b if jitter_batch > 1 else 0
+            for x in range(width):
+                count = counts[b, y // tile, x // tile]
+                if count == 0:
+                    for c in range(channels):
+                        mine[b, y, x, c] += grad_out[b, c, y, x]
+                    continue
+                tile_y = y // tile
+                tile_x = x // tile
+                nx = np.float64(neighbors[b, 0, tile_y, tile_x])
+                ny = np.float64(neighbors[b, 1, tile_y, tile_x])
+                speed_n = _length(nx, ny)
+                vx = np.float64(buffers[b, y, x, channels])
+                vy = np.float64(buffers[b, y, x, channels + 1])
+                length_x = _length(vx, vy)
+                speed_x = length_x if length_x >= min_radius else min_radius
+                inverse_x = _floored_inverse(speed_x)
+                z_x = np.float64(buffers[b, y, x, channels + 2])
+                j = np.float64(jitter[jb, 0, y, x])
+                w = np.float64(weight[b, y, x])
+                # out = total / w: d total = g / w, d w = -sum(g out) / w; per tap alpha and
+                # alpha C[Y] both enter, so d alpha = sum(g (C[Y] - out)) / w.
+                g_center = 0.0
+                for c in range(channels):
+                    g_total[c] = grad_out[b, c, y, x] / w
+                    g_center += g_total[c] * (buffers[b, y, x, c] - out[b, c, y, x])
+                    mine[b, y, x, c] += g_total[c] / speed_x
+                g_speed_x = -g_center / (speed_x * speed_x)
+                g_length_x = 0.0
+                g_vx = 0.0
+                g_vy = 0.0
+                g_z_x = 0.0
+                g_nx = 0.0
+                g_ny = 0.0
+                g_speed_n = 0.0
+                middle = (count - 1) // 2
+                step = 2.0 / (count + 1.0)
+                for k in range(count):
+                    if k == middle:
+                        continue
+                    t = -1.0 + (k + j + 1.0) * step
+                    own = own_odd and k % 2 == 1
+                    if own:
+                        dx, dy, speed = vx, vy, length_x
+                    else:
+                        dx, dy, speed = nx, ny, speed_n
+                    column0, column1, row0, row1, fx, fy, inside_x, inside_y = _bilinear_setup(x + dx * t, y + dy * t, width, height)
+                    slope_vxx, slope_vxy, v_yx = _read_slopes(buffers, b, channels, row0, row1, column0, column1, fx, fy)
+                    slope_vyx, slope_vyy, v_yy = _read_slopes(buffers, b, channels + 1, row0, row1, column0, column1, fx, fy)
+                    slope_zx, slope_zy, z_y = _read_slopes(buffers, b, channels + 2, row0, row1, column0, column1, fx, fy)
+                    length_y = _length(v_yx, v_yy)
+                    speed_y = length_y if length_y >= min_radius else min_radius
+                    inverse_y = _floored_inverse(speed_y)
+                    distance = abs(t) * speed
+                    front = _soft_depth_compare(z_x, z_y, extent, inverse_extent)
+                    behind = _soft_depth_compare(z_y, z_x, extent, inverse_extent)
+                    cone_y = _cone(distance, inverse_y)
+                    cone_x = _cone(distance, inverse_x)
+                    cylinder_y = _cylinder(distance, inverse_y)
+                    cylinder_x = _cylinder(distance, inverse_x)
+                    alpha = front * cone_y + behind * cone_x + cylinder_y * cylinder_x * 2.0
+                    g_alpha = 0.0
+                    g_fx = 0.0
+                    g_fy = 0.0
+                    for c in range(channels):
+                        slope_x, slope_y, c_y = _read_slopes(buffers, b, c, row0, row1, column0, column1, fx, fy)
+                        g_alpha += g_total[c] * (c_y - out[b, c, y, x])
+                        g_c = alpha * g_total[c]
+                        _scatter(mine, b, c, row0, row1, column0, column1, fx, fy, g_c)
+                        g_fx += g_c * slope_x
+                        g_fy += g_c * slope_y
+                    # The classifiers.
+                    g_z_y = 0.0
+                    g_front = g_alpha * cone_y
+                    g_behind = g_alpha * cone_x
+                    if z_y - z_x >= 0.0 and z_y - z_x <= extent:
+                        g_z_y -= g_front * inverse_extent
+                        g_z_x += g_front * inverse_extent
+                    if z_x - z_y >= 0.0 and z_x - z_y <= extent:
+                        g_z_x -= g_behind * inverse_extent
+                        g_z_y += g_behind * inverse_extent
+                    g_distance, g_speed_y = _cone_grad(distance, speed_y, inverse_y, g_alpha * front)
+                    d_distance, d_speed = _cone_grad(distance, speed_x, inverse_x, g_alpha * behind)
+                    g_distance += d_distance
+                    g_speed_x += d_speed
+                    d_distance, d_speed = _cylinder_grad(distance, speed_y, inverse_y, g_alpha * 2.0 * cylinder_x)
+                    g_distance += d_distance
+                    g_speed_y += d_speed
+                    d_distance, d_speed = _cylinder_grad(distance, speed_x, inverse_x, g_alpha * 2.0 * cylinder_y)
+                    g_distance += d_distance
+                    g_speed_x += d_speed
+                    # V[Y] through speed_y = max(|V[Y]|, min_radius).
+                    g_v_yx = 0.0
+                    g_v_yy = 0.0
+                    if length_y >= min_radius and length_y > 0.0:
+                        g_v_yx = g_speed_y * v_yx / length_y
+                        g_v_yy = g_speed_y * v_yy / length_y
+                    _scatter(mine, b, channels, row0, row1, column0, column1, fx, fy, g_v_yx)
+                    _scatter(mine, b, channels + 1, row0, row1, column0, column1, fx, fy, g_v_yy)
+                    _scatter(mine, b, channels + 2, row0, row1, column0, column1, fx, fy, g_z_y)
+                    g_fx += g_v_yx * slope_vxx + g_v_yy * slope_vyx + g_z_y * slope_zx
+                    g_fy += g_v_yx * slope_vxy + g_v_yy * slope_vyy + g_z_y * slope_zy
+                    # The tap position X + direction t and the distance |t| speed.
+                    g_dx = g_fx * t if inside_x else 0.0
+                    g_dy = g_fy * t if inside_y else 0.0
+                    if own:
+                        g_vx += g_dx
+                        g_vy += g_dy
+                        g_length_x += g_distance * abs(t)
+                    else:
+                        g_nx += g_dx
+                        g_ny += g_dy
+                        g_speed_n += g_distance * abs(t)
+                if length_x >= min_radius:
+                    g_length_x += g_speed_x
+                if length_x > 0.0:
+                    g_vx += g_length_x * vx / length_x
+                    g_vy += g_length_x * vy / length_x
+                if speed_n > 0.0:
+                    g_nx += g_speed_n * nx / speed_n
+                    g_ny += g_speed_n * ny / speed_n
+                mine[b, y, x, channels] += g_vx
+                mine[b, y, x, channels + 1] += g_vy
+                mine[b, y, x, channels + 2] += g_z_x
+                grad_neighbors[chunk, b, 0, tile_y, tile_x] += g_nx
+                grad_neighbors[chunk, b, 1, tile_y, tile_x] += g_ny
+
+
+def _threads() -> int:
+    return max(1, numba.get_num_threads())
+
+
+def _buffers(color: np.ndarray, velocity: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    batch, channels, height, width = color.shape
+    buffers = np.empty((batch, height, width, channels + 3), dtype=color.dtype)
+    _interleave(color, velocity, depth, buffers)
+    return buffers
+
+
+def reconstruct_forward(
+    color: np.ndarray,
+    velocity: np.ndarray,
+    depth: np.ndarray,
+    neighbors: np.ndarray,
+    counts: np.ndarray,
+    jitter: np.ndarray,
+    *,
+    tile: int,
+    soft_z_extent: float,
+    min_radius: float,
+    own_odd: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The reconstruction filter, fused. color (B, C, H, W), velocity (B, 2, H, W), depth (B, 1, H,
+    W), neighbors (B, 2, TH, TW) NeighborMax, counts (B, TH, TW) taps per tile (0: the image),
+    jitter (B or 1, 1, H, W), all C-contiguous in one float dtype (counts int32). Returns the
+    image and the per-pixel weight sum (B, H, W) that the backward needs."""
+    batch, _, height, width = color.shape
+    out = np.empty_like(color)
+    weight = np.empty((batch, height, width), dtype=color.dtype)
+    settings = (int(tile), float(soft_z_extent), float(min_radius), bool(own_odd), row_order(batch * height))
+    # Several chunks per thread: numba hands each thread one static share of the loop.
+    chunks = min(batch * height, 4 * _threads())
+    _reconstruct_forward(_buffers(color, velocity, depth), neighbors, counts, jitter, *settings, chunks, out, weight)
+    return out, weight
+
+
+def reconstruct_backward(
+    color: np.ndarray,
+    velocity: np.ndarray,
+    depth: np.ndarray,
+    neighbors: np.ndarray,
+    counts: np.ndarray,
+    jitter: np.ndarray,
+    out: np.ndarray,
+    weight: np.ndarray,
+    grad_out: np.ndarray,
+    *,
+    tile: int,
+    soft_z_extent: float,
+    min_radius: float,
+    own_odd: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Gradients of `reconstruct_forward`'s image w.r.t. color, velocity, depth and neighbors,
+    given the forward's out and weight and the output's gradient grad_out."""
+    batch, channels, height, width = color.shape
+    chunks = min(_threads(), batch * height)
+    grads = np.zeros((chunks, batch, height, width, channels + 3), dtype=color.dtype)
+    grad_neighbors = np.zeros((chunks, *neighbors.shape), dtype=color.dtype)
+    settings = (int(tile), float(soft_z_extent), float(min_radius), bool(own_odd), row_order(batch * height))
+    _reconstruct_backward(_buffers(color, velocity, depth), neighbors, counts, jitter, *settings, out, weight, grad_out, grads, grad_neighbors)
+    total = np.empty((batch, channels + 3, height, width), dtype=color.dtype)
+    _deinterleave_sum(grads, total)
+    return total[:, :channels], total[:, channels : channels + 2], total[:, channels + 2 :], grad_neighbors.sum(axis=0)

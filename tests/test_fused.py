@@ -1,0 +1,173 @@
+"""The fused CPU reconstruct (diffblur._fused) against the pure tensor ops, both frameworks.
+
+The pure ops are the reference: the fused path must give the same image and the same gradients
+w.r.t. color, velocity and depth (float64: to rounding; float32: to float32 tolerance), for every
+option it accepts, eagerly, under jax.jit and under jax.vmap; it must refuse what it does not
+cover when asked for (fused=True) and quietly use the pure ops otherwise (fused=None).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+jax = pytest.importorskip("jax")
+pytest.importorskip("numba")
+import jax.numpy as jnp  # noqa: E402
+
+import jax_impl  # noqa: E402
+import torch_impl  # noqa: E402
+
+BATCH, CHANNELS, HEIGHT, WIDTH = 2, 3, 11, 14
+
+#: Options the fused kernel covers (small radius: several tiles on a 11 x 14 image).
+CASES = {
+    "default": dict(max_radius=4.0, samples=7),
+    "own directions": dict(max_radius=4.0, samples=7, directions="neighbor_and_own"),
+    "early out": dict(max_radius=4.0, samples=7, early_out=True),
+    "no jitter": dict(max_radius=3.0, samples=5, jitter="none"),
+    "adaptive": dict(max_radius=4.0, samples=15, adaptive=True),
+    "adaptive, early out": dict(max_radius=4.0, samples=15, adaptive=(3, 7), early_out=True),
+    "min radius, soft z": dict(max_radius=5.0, samples=9, min_radius=1.5, soft_z_extent=0.02),
+}
+
+
+def _scene(dtype=np.float64, seed=0):
+    """Two depth layers, a fast block over a slowly drifting background, one still corner tile."""
+    rng = np.random.default_rng(seed)
+    color = rng.random((BATCH, CHANNELS, HEIGHT, WIDTH))
+    velocity = np.zeros((BATCH, 2, HEIGHT, WIDTH))
+    velocity[:, 0] = 0.7
+    velocity[:, :, 3:8, 4:10] = rng.uniform(-6, 6, size=(BATCH, 2, 1, 1))
+    velocity[:, :, :, :] += rng.normal(0, 0.3, size=velocity.shape)
+    velocity[:, :, 8:, 10:] = 0.0  # a still region
+    depth = np.where(velocity[:, :1] ** 2 > 4.0, 1.0, 2.0) + rng.uniform(0, 0.05, size=(BATCH, 1, HEIGHT, WIDTH))
+    cotangent = rng.standard_normal((BATCH, CHANNELS, HEIGHT, WIDTH))
+    return [a.astype(dtype) for a in (color, velocity, depth, cotangent)]
+
+
+def _torch_run(arrays, options, fused):
+    color, velocity, depth = (torch.tensor(a, requires_grad=True) for a in arrays[:3])
+    out = torch_impl.reconstruct(color, velocity, depth, fused=fused, **options)
+    grads = torch.autograd.grad(out, (color, velocity, depth), torch.tensor(arrays[3]))
+    return out.detach().numpy(), [g.numpy() for g in grads]
+
+
+def _jax_run(arrays, options, fused, transform=lambda f: f):
+    cotangent = jnp.asarray(arrays[3])
+
+    def loss(color, velocity, depth):
+        return jnp.sum(jax_impl.reconstruct(color, velocity, depth, fused=fused, **options) * cotangent)
+
+    out = transform(lambda c, v, d: jax_impl.reconstruct(c, v, d, fused=fused, **options))(*arrays[:3])
+    grads = transform(jax.grad(loss, argnums=(0, 1, 2)))(*arrays[:3])
+    return np.asarray(out), [np.asarray(g) for g in grads]
+
+
+def _assert_close(fused, pure, tolerance):
+    out_f, grads_f = fused
+    out_p, grads_p = pure
+    np.testing.assert_allclose(out_f, out_p, rtol=0, atol=tolerance)
+    for name, gf, gp in zip(("color", "velocity", "depth"), grads_f, grads_p):
+        scale = max(1.0, float(np.abs(gp).max()))
+        np.testing.assert_allclose(gf, gp, rtol=0, atol=tolerance * scale, err_msg=f"gradient w.r.t. {name}")
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_torch_fused_matches_pure_float64(case):
+    arrays = _scene()
+    _assert_close(_torch_run(arrays, CASES[case], True), _torch_run(arrays, CASES[case], False), 1e-11)
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_jax_fused_matches_pure_float64_under_jit(case):
+    arrays = _scene()
+    _assert_close(_jax_run(arrays, CASES[case], True, jax.jit), _jax_run(arrays, CASES[case], False), 1e-11)
+
+
+def test_float32_both_frameworks_agree():
+    arrays = _scene(np.float32, seed=1)
+    options = CASES["default"]
+    torch_fused = _torch_run(arrays, options, True)
+    _assert_close(torch_fused, _torch_run(arrays, options, False), 2e-5)
+    _assert_close(_jax_run(arrays, options, True), torch_fused, 2e-5)
+
+
+def test_default_takes_the_fused_path_and_it_is_the_pure_result():
+    """fused=None on float32 CPU inputs runs the kernel (its autograd node), with the pure result."""
+    color, velocity, depth, _ = (torch.tensor(a, requires_grad=True) for a in _scene(np.float32))
+    out = torch_impl.reconstruct(color, velocity, depth, max_radius=4.0)
+    assert type(out.grad_fn).__name__ == "_FusedReconstructBackward"
+    pure = torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, fused=False)
+    assert type(pure.grad_fn).__name__ != "_FusedReconstructBackward"
+    torch.testing.assert_close(out, pure, rtol=0, atol=2e-5)
+
+
+def test_jitter_tensor_per_batch_item():
+    arrays = _scene()
+    jitter = np.random.default_rng(3).uniform(-0.5, 0.5, size=(BATCH, 1, HEIGHT, WIDTH))
+    options = dict(max_radius=4.0, samples=7)
+    torch_jitter = dict(options, jitter=torch.tensor(jitter))
+    _assert_close(_torch_run(arrays, torch_jitter, True), _torch_run(arrays, torch_jitter, False), 1e-11)
+
+
+def test_jax_vmap_over_a_leading_axis():
+    arrays = _scene()
+    stacked = [np.stack([a, a[::-1]]) for a in arrays]
+    options = CASES["default"]
+    out = jax.vmap(lambda c, v, d: jax_impl.reconstruct(c, v, d, fused=True, **options))(*stacked[:3])
+    for i in range(2):
+        reference = jax_impl.reconstruct(*(s[i] for s in stacked[:3]), fused=False, **options)
+        np.testing.assert_allclose(np.asarray(out[i]), np.asarray(reference), rtol=0, atol=1e-11)
+
+
+@pytest.mark.parametrize(
+    "options, words",
+    [
+        (dict(sampling="nearest"), "sampling='nearest'"),
+        (dict(shutter="gaussian"), "shutter 'gaussian'"),
+        (dict(pyramid=True), "pyramid=True"),
+    ],
+)
+def test_fused_true_refuses_what_it_does_not_cover_and_none_falls_back(options, words):
+    color, velocity, depth, _ = (torch.tensor(a) for a in _scene(np.float32))
+    with pytest.raises(ValueError, match=words.replace("(", r"\(")):
+        torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, fused=True, **options)
+    with pytest.raises(ValueError, match=words.replace("(", r"\(")):
+        jax_impl.reconstruct(*(jnp.asarray(a.numpy()) for a in (color, velocity, depth)), max_radius=4.0, fused=True, **options)
+    fallback = torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, **options)
+    pure = torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, fused=False, **options)
+    torch.testing.assert_close(fallback, pure, rtol=0, atol=0)
+
+
+def test_half_precision_falls_back_to_the_tensor_ops():
+    color, velocity, depth, _ = (torch.tensor(a).to(torch.float16) for a in _scene(np.float32))
+    with pytest.raises(ValueError, match="float16"):
+        torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, fused=True)
+    assert torch_impl.reconstruct(color, velocity, depth, max_radius=4.0).dtype == torch.float16
+
+
+def test_torch_double_backward_is_refused_clearly():
+    color, velocity, depth, _ = (torch.tensor(a, requires_grad=True) for a in _scene())
+    (grad,) = torch.autograd.grad(torch_impl.reconstruct(color, velocity, depth, max_radius=4.0).sum(), velocity, create_graph=True)
+    with pytest.raises(RuntimeError, match="once_differentiable|double backward|does not require grad"):
+        grad.sum().backward()
+
+
+def test_jax_forward_mode_needs_fused_false():
+    color, velocity, depth, _ = (jnp.asarray(a) for a in _scene())
+    f = lambda v: jax_impl.reconstruct(color, v, depth, max_radius=4.0, fused=True)  # noqa: E731
+    with pytest.raises(TypeError, match="custom_vjp"):
+        jax.jvp(f, (velocity,), (jnp.ones_like(velocity),))
+    pure = lambda v: jax_impl.reconstruct(color, v, depth, max_radius=4.0, fused=False)  # noqa: E731
+    _, tangent = jax.jvp(pure, (velocity,), (jnp.ones_like(velocity),))
+    assert np.isfinite(np.asarray(tangent)).all()
+
+
+def test_batch_items_do_not_mix():
+    arrays = _scene(np.float32)
+    color, velocity, depth = (torch.tensor(a) for a in arrays[:3])
+    whole = torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, fused=True)
+    single = torch_impl.reconstruct(color[1:], velocity[1:], depth[1:], max_radius=4.0, fused=True)
+    torch.testing.assert_close(whole[1:], single, rtol=0, atol=0)
