@@ -119,6 +119,8 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("reconstruct", "S=5, bilinear", _reconstruct(samples=5), _RV, _RV),
     Setting("reconstruct", "S=9, bilinear", _reconstruct(samples=9), _RV, _RV),
     Setting("reconstruct", "S=15, bilinear", _reconstruct(samples=15), _RV, _RV, quick=True),
+    Setting("reconstruct", "S=15, bilinear, tensor ops", _reconstruct(samples=15, fused=False), _RV, _RV, quick=True),
+    Setting("reconstruct", "S=15, bilinear, adaptive", _reconstruct(samples=15, adaptive=True), _RV, _RV),
     Setting("reconstruct", "S=31, bilinear", _reconstruct(samples=31), _RV, _RV),
     Setting("reconstruct", "S=15, nearest (paper)", _reconstruct(samples=15, sampling="nearest"), _RV, _RV),
     Setting("reconstruct", "S=15, bilinear, no jitter", _reconstruct(samples=15, jitter="none"), _RV, _RV),
@@ -157,6 +159,7 @@ SETTINGS: tuple[Setting, ...] = (
 TARGET_SETTINGS: tuple[Setting, ...] = (
     Setting("reconstruct", "S=15, bilinear", _reconstruct(samples=15), _RV, _RV),
     Setting("reconstruct", "S=31, bilinear", _reconstruct(samples=31), _RV, _RV),
+    Setting("reconstruct", "S=15, bilinear, tensor ops", _reconstruct(samples=15, fused=False), _RV, _RV),
     Setting("kornia.motion_blur", "kernel 31, bilinear", _kornia(31), ("color", "angle"), ("color", "angle"), backends=("torch",)),
     Setting("bezier_scatter", "degree 2, 16 points", _scatter(degree=2, samples=16, shutter="box"), _SC, _SC),
 )
