@@ -105,9 +105,11 @@ def reconstruct(
             |NeighborMax| picks the fewest taps among a few classes that give one tap per pixel
             travelled (True: 3, 7, 15, ... up to samples; or a tuple of odd counts), and still
             tiles (|NeighborMax| <= 0.001 px, or the early-out's 0.5 px when early_out is on)
-            return the image. Tiles of the full-rate class get the full-rate result. Each class
-            runs on its tiles' pixels only in eager mode; under compilation every class runs on
-            every pixel and is selected per tile (same result, no saving).
+            return the image. Tiles of the full-rate class get the full-rate result. On the fused
+            path (see `fused`) each tile takes its class's taps inside the kernel, eagerly and
+            under jax.jit. On the tensor ops each class runs on its tiles' pixels only in eager
+            mode; under compilation every class runs on every pixel and is selected per tile
+            (same result, no saving).
         pyramid: where the taps are farther apart than a pixel (2 |v| / (samples + 1) > 1 along
             the tap direction v), read the taps' colour from a pre-filtered pyramid level (seed
             001's texture-space blur), trilinearly; depth and velocity stay full resolution.
