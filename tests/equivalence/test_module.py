@@ -79,7 +79,8 @@ def test_torch_layer_trains_its_exposure_and_compiles():
         optimizer.step()
     assert abs(layer.exposure.item() - 0.6) < 0.02
     compiled = torch.compile(layer, backend="aot_eager", fullgraph=True)
-    torch.testing.assert_close(compiled(color, velocity, depth), layer(color, velocity, depth), rtol=1e-5, atol=1e-6)
+    # Compiled, the layer runs the tensor ops; eager, the fused kernel: float32 rounding apart.
+    torch.testing.assert_close(compiled(color, velocity, depth), layer(color, velocity, depth), rtol=1e-5, atol=2e-5)
 
 
 def test_torch_layer_learns_a_shutter_shape():

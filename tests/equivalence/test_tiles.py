@@ -159,7 +159,10 @@ def test_pyramid_changes_nothing_where_taps_are_a_pixel_apart(backend, op):
     depth = backend.array(rng.uniform(1.0, 2.0, size=(1, 1, 12, 13)))
     args = (color, velocity) if op == "gather_blur" else (color, velocity, depth)
     run = getattr(backend.ops, op)
-    np.testing.assert_array_equal(backend.numpy(run(*args, samples=15, pyramid=True)), backend.numpy(run(*args, samples=15)))
+    # The pyramid runs on the tensor ops: compare with them, not with the fused kernel (same value,
+    # other rounding).
+    plain = {"fused": False} if op == "reconstruct" else {}
+    np.testing.assert_array_equal(backend.numpy(run(*args, samples=15, pyramid=True)), backend.numpy(run(*args, samples=15, **plain)))
 
 
 @pytest.mark.parametrize("op", ["gather_blur", "reconstruct"])
