@@ -34,7 +34,7 @@ try:  # numba is a dependency; the guard keeps the pure ops usable where it cann
 except ImportError:  # pragma: no cover - exercised only without numba
     numba = None
 
-__all__ = ["available", "reconstruct_backward", "reconstruct_forward", "reconstruct_unfused_reason"]
+__all__ = ["available", "reconstruct_backward", "reconstruct_forward", "reconstruct_unfused_reason", "tile_counts"]
 
 _INVERSE_CYLINDER_SPAN = 1.0 / (CYLINDER_OUTER - CYLINDER_INNER)
 #: Row interleave of the parallel loops: each thread's static share of the rows is spread over the
@@ -63,6 +63,17 @@ def reconstruct_unfused_reason(o: Any, dtype_name: str) -> str | None:
     if dtype_name not in ("float32", "float64"):
         return f"dtype {dtype_name} (the fused kernel takes float32 and float64)"
     return None
+
+
+def tile_counts(speed: Any, o: Any, xp: Any) -> Any:
+    """The kernel's taps per tile from the tiles' |NeighborMax| (any shape, numpy/torch/jax.numpy):
+    the adaptive classes, else the full rate, 0 where the early-out returns the image."""
+    from diffblur._adaptive import still_speed, tile_sample_counts
+
+    if o.classes is not None:
+        return tile_sample_counts(speed, o.classes, still_speed(o.early_out), xp)
+    # Without the early-out no tile is skipped: the full-rate filter runs on still tiles too.
+    return tile_sample_counts(speed, (o.samples,), still_speed(True) if o.early_out else -1.0, xp)
 
 
 def row_order(rows: int) -> np.ndarray:
@@ -211,6 +222,31 @@ def _deinterleave_sum(grads, out):
                 out[b, c, y, x] = total
 
 
+@_inline
+def _pixel(buffers, neighbors, jitter, b, jb, y, x, tile, min_radius):
+    """Pixel X's NeighborMax v_N and |v_N|, V[X], |V[X]|, the classifiers' speed (floored) and its
+    floored inverse, Z[X] and the jitter j, as float64."""
+    channels = buffers.shape[3] - 3
+    nx = np.float64(neighbors[b, 0, y // tile, x // tile])
+    ny = np.float64(neighbors[b, 1, y // tile, x // tile])
+    vx = np.float64(buffers[b, y, x, channels])
+    vy = np.float64(buffers[b, y, x, channels + 1])
+    length_x = _length(vx, vy)
+    speed_x = length_x if length_x >= min_radius else min_radius
+    z_x = np.float64(buffers[b, y, x, channels + 2])
+    return nx, ny, _length(nx, ny), vx, vy, length_x, speed_x, _floored_inverse(speed_x), z_x, np.float64(jitter[jb, 0, y, x])
+
+
+@_inline
+def _tap(k, j, step, own_odd, nx, ny, speed_n, vx, vy, length_x):
+    """Tap k's time t (seed 000 Listing 1), whether it follows V[X], its direction and speed."""
+    t = -1.0 + (k + j + 1.0) * step
+    own = own_odd and k % 2 == 1
+    if own:
+        return t, own, vx, vy, length_x
+    return t, own, nx, ny, speed_n
+
+
 @_jit
 def _reconstruct_forward(buffers, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, chunks, out, weight):
     batch, height, width, stored = buffers.shape
@@ -232,16 +268,7 @@ def _reconstruct_forward(buffers, neighbors, counts, jitter, tile, extent, min_r
                         out[b, c, y, x] = buffers[b, y, x, c]
                     weight[b, y, x] = 0.0
                     continue
-                nx = np.float64(neighbors[b, 0, y // tile, x // tile])
-                ny = np.float64(neighbors[b, 1, y // tile, x // tile])
-                speed_n = _length(nx, ny)
-                vx = np.float64(buffers[b, y, x, channels])
-                vy = np.float64(buffers[b, y, x, channels + 1])
-                length_x = _length(vx, vy)
-                speed_x = length_x if length_x >= min_radius else min_radius
-                inverse_x = _floored_inverse(speed_x)
-                z_x = np.float64(buffers[b, y, x, channels + 2])
-                j = np.float64(jitter[jb, 0, y, x])
+                nx, ny, speed_n, vx, vy, length_x, speed_x, inverse_x, z_x, j = _pixel(buffers, neighbors, jitter, b, jb, y, x, tile, min_radius)
                 w = 1.0 / speed_x
                 for c in range(channels):
                     total[c] = w * buffers[b, y, x, c]
@@ -250,11 +277,7 @@ def _reconstruct_forward(buffers, neighbors, counts, jitter, tile, extent, min_r
                 for k in range(count):
                     if k == middle:
                         continue
-                    t = -1.0 + (k + j + 1.0) * step
-                    if own_odd and k % 2 == 1:
-                        dx, dy, speed = vx, vy, length_x
-                    else:
-                        dx, dy, speed = nx, ny, speed_n
+                    t, own, dx, dy, speed = _tap(k, j, step, own_odd, nx, ny, speed_n, vx, vy, length_x)
                     column0, column1, row0, row1, fx, fy, _, _ = _bilinear_setup(x + dx * t, y + dy * t, width, height)
                     v_yx = _read(buffers, b, channels, row0, row1, column0, column1, fx, fy)
                     v_yy = _read(buffers, b, channels + 1, row0, row1, column0, column1, fx, fy)
@@ -301,16 +324,7 @@ def _reconstruct_backward(buffers, neighbors, counts, jitter, tile, extent, min_
                     continue
                 tile_y = y // tile
                 tile_x = x // tile
-                nx = np.float64(neighbors[b, 0, tile_y, tile_x])
-                ny = np.float64(neighbors[b, 1, tile_y, tile_x])
-                speed_n = _length(nx, ny)
-                vx = np.float64(buffers[b, y, x, channels])
-                vy = np.float64(buffers[b, y, x, channels + 1])
-                length_x = _length(vx, vy)
-                speed_x = length_x if length_x >= min_radius else min_radius
-                inverse_x = _floored_inverse(speed_x)
-                z_x = np.float64(buffers[b, y, x, channels + 2])
-                j = np.float64(jitter[jb, 0, y, x])
+                nx, ny, speed_n, vx, vy, length_x, speed_x, inverse_x, z_x, j = _pixel(buffers, neighbors, jitter, b, jb, y, x, tile, min_radius)
                 w = np.float64(weight[b, y, x])
                 # out = total / w: d total = g / w, d w = -sum(g out) / w; per tap alpha and
                 # alpha C[Y] both enter, so d alpha = sum(g (C[Y] - out)) / w.
@@ -332,12 +346,7 @@ def _reconstruct_backward(buffers, neighbors, counts, jitter, tile, extent, min_
                 for k in range(count):
                     if k == middle:
                         continue
-                    t = -1.0 + (k + j + 1.0) * step
-                    own = own_odd and k % 2 == 1
-                    if own:
-                        dx, dy, speed = vx, vy, length_x
-                    else:
-                        dx, dy, speed = nx, ny, speed_n
+                    t, own, dx, dy, speed = _tap(k, j, step, own_odd, nx, ny, speed_n, vx, vy, length_x)
                     column0, column1, row0, row1, fx, fy, inside_x, inside_y = _bilinear_setup(x + dx * t, y + dy * t, width, height)
                     slope_vxx, slope_vxy, v_yx = _read_slopes(buffers, b, channels, row0, row1, column0, column1, fx, fy)
                     slope_vyx, slope_vyy, v_yy = _read_slopes(buffers, b, channels + 1, row0, row1, column0, column1, fx, fy)

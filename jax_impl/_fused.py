@@ -15,8 +15,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from diffblur import _fused
-from diffblur._adaptive import still_speed, tile_sample_counts
-from diffblur.conventions import EPSILON
 from jax_impl._primitives import _safe_length, neighbor_max, tile_max
 
 
@@ -71,13 +69,7 @@ def fused_reconstruct(color, velocity, depth, jitter, o):
     """reconstruct (options `o`, adaptive or not) on the fused kernel; see `unfused_reason`."""
     neighbors = neighbor_max(tile_max(velocity, o.tile))
     speed = _safe_length(jax.lax.stop_gradient(neighbors))[:, 0]
-    if o.classes is not None:
-        counts = tile_sample_counts(speed, o.classes, still_speed(o.early_out), jnp)
-    else:
-        counts = jnp.full(speed.shape, o.samples, dtype=jnp.int32)
-        if o.early_out:
-            counts = jnp.where(speed <= EPSILON + 0.5, 0, counts)
-    # A tuple of pairs: hashable, as custom_vjp's static argument must be.
+    counts = _fused.tile_counts(speed, o, jnp)
     settings = (("tile", o.tile), ("soft_z_extent", o.soft_z_extent), ("min_radius", o.min_radius), ("own_odd", o.directions == "neighbor_and_own"))
     jitter = jnp.broadcast_to(jitter, (jitter.shape[0], 1, *color.shape[2:]))
     return _fused_core(settings, color, velocity, depth, neighbors, counts.astype(jnp.int32), jitter)

@@ -11,8 +11,6 @@ from torch import Tensor
 from torch.autograd.function import once_differentiable
 
 from diffblur import _fused
-from diffblur._adaptive import still_speed, tile_sample_counts
-from diffblur.conventions import EPSILON
 from torch_impl._primitives import _safe_length, neighbor_max, tile_max
 
 
@@ -55,11 +53,6 @@ def fused_reconstruct(color: Tensor, velocity: Tensor, depth: Tensor, jitter: Te
     """reconstruct (options `o`, adaptive or not) on the fused kernel; see `unfused_reason`."""
     neighbors = neighbor_max(tile_max(velocity, o.tile))
     speed = _safe_length(neighbors.detach())[:, 0]
-    if o.classes is not None:
-        counts = tile_sample_counts(speed, o.classes, still_speed(o.early_out), torch)
-    else:
-        counts = torch.full_like(speed, o.samples, dtype=torch.int32)
-        if o.early_out:
-            counts = torch.where(speed <= EPSILON + 0.5, 0, counts)
+    counts = _fused.tile_counts(speed, o, torch)
     settings = dict(tile=o.tile, soft_z_extent=o.soft_z_extent, min_radius=o.min_radius, own_odd=o.directions == "neighbor_and_own")
     return _FusedReconstruct.apply(color, velocity, depth, neighbors, counts.to(torch.int32), jitter.expand(-1, 1, -1, -1), settings)
