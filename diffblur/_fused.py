@@ -34,7 +34,17 @@ try:  # numba is a dependency; the guard keeps the pure ops usable where it cann
 except ImportError:  # pragma: no cover - exercised only without numba
     numba = None
 
-__all__ = ["available", "reconstruct_backward", "reconstruct_forward", "reconstruct_unfused_reason", "tile_counts"]
+__all__ = [
+    "available",
+    "constant_gather_masses",
+    "gather_backward",
+    "gather_forward",
+    "gather_unfused_reason",
+    "reconstruct_backward",
+    "reconstruct_forward",
+    "reconstruct_unfused_reason",
+    "tile_counts",
+]
 
 _INVERSE_CYLINDER_SPAN = 1.0 / (CYLINDER_OUTER - CYLINDER_INNER)
 #: Row interleave of the parallel loops: each thread's static share of the rows is spread over the
@@ -494,3 +504,213 @@ def reconstruct_backward(
     total = np.empty((batch, channels + 3, height, width), dtype=color.dtype)
     _deinterleave_sum(grads, total)
     return total[:, :channels], total[:, channels : channels + 2], total[:, channels + 2 :], grad_neighbors.sum(axis=0)
+
+
+# -- gather_blur ------------------------------------------------------------------------------------
+# out[X] = sum_k m[n, k] C[X - t_k V[X]] with n the pixel's tile count and t_k = (2k + 1) / n - 1
+# (`diffblur.taps.gather_tap_times`); the mass table m (S + 1, S) holds row n for each count n in use,
+# so adaptive classes and the shutter (any window: its masses are an input with a gradient) come in
+# as data. Only colour is read at the taps; the velocity is read at X.
+
+
+def gather_unfused_reason(sampling: str, pyramid: bool, dtype_name: str) -> str | None:
+    """Why `gather_blur` with these options cannot take the fused path, or None when it can."""
+    if numba is None:
+        return "numba is not installed"
+    if sampling != "bilinear":
+        return f"sampling={sampling!r} (the fused kernel is bilinear)"
+    if pyramid:
+        return "pyramid=True"
+    if dtype_name not in ("float32", "float64"):
+        return f"dtype {dtype_name} (the fused kernel takes float32 and float64)"
+    return None
+
+
+def constant_gather_masses(window: Any, samples: int, classes: tuple[int, ...]) -> np.ndarray | None:
+    """The kernel's mass table (S + 1, S), float64, when the window's parameters are constants (row
+    n: the renormalised masses of n taps for each count n in `classes`, zeros elsewhere); None when
+    a parameter is an array to fit, whose gradient the backends' own table carries."""
+    from diffblur._scatter_options import has_constant_parameters
+    from diffblur.taps import gather_tap_times, stratum_weights
+
+    if not has_constant_parameters(window):
+        return None
+    table = np.zeros((samples + 1, samples))
+    for count in classes:
+        masses = stratum_weights(window, np.asarray(gather_tap_times(count)), 1.0 / count, np)
+        table[count, :count] = masses / masses.sum()
+    return table
+
+
+@_jit
+def _channels_last(color, buffers):
+    """(B, C, H, W) -> buffers (B, H, W, C): a tap's reads of every channel sit together."""
+    batch, channels, height, width = color.shape
+    for row in numba.prange(batch * height):
+        b = row // height
+        y = row % height
+        for x in range(width):
+            for c in range(channels):
+                buffers[b, y, x, c] = color[b, c, y, x]
+
+
+@_jit
+def _gather_forward(buffers, velocity, counts, masses, tile, order, chunks, out):
+    batch, height, width, channels = buffers.shape
+    rows = batch * height
+    for chunk in numba.prange(chunks):
+        total = np.empty(channels)
+        for i in range(chunk * rows // chunks, (chunk + 1) * rows // chunks):
+            row = order[i]
+            b = row // height
+            y = row % height
+            for x in range(width):
+                count = counts[b, y // tile, x // tile]
+                if count == 0:
+                    for c in range(channels):
+                        out[b, c, y, x] = buffers[b, y, x, c]
+                    continue
+                vx = np.float64(velocity[b, 0, y, x])
+                vy = np.float64(velocity[b, 1, y, x])
+                for c in range(channels):
+                    total[c] = 0.0
+                for k in range(count):
+                    t = (2.0 * k + 1.0) / count - 1.0
+                    mass = np.float64(masses[count, k])
+                    column0, column1, row0, row1, fx, fy, _, _ = _bilinear_setup(x - t * vx, y - t * vy, width, height)
+                    for c in range(channels):
+                        total[c] += mass * _read(buffers, b, c, row0, row1, column0, column1, fx, fy)
+                for c in range(channels):
+                    out[b, c, y, x] = total[c]
+
+
+@_jit
+def _gather_backward(buffers, velocity, counts, masses, tile, order, grad_out, grads, grad_velocity, grad_masses):
+    """grads: (chunks, B, H, W, C) zeros, one per chunk of rows; grad_velocity (B, 2, H, W) (each
+    pixel writes its own); grad_masses: (chunks, S + 1, S) zeros."""
+    batch, height, width, channels = buffers.shape
+    chunks = grads.shape[0]
+    rows = batch * height
+    for chunk in numba.prange(chunks):
+        mine = grads[chunk]
+        for i in range(chunk * rows // chunks, (chunk + 1) * rows // chunks):
+            row = order[i]
+            b = row // height
+            y = row % height
+            for x in range(width):
+                count = counts[b, y // tile, x // tile]
+                if count == 0:
+                    for c in range(channels):
+                        mine[b, y, x, c] += grad_out[b, c, y, x]
+                    grad_velocity[b, 0, y, x] = 0.0
+                    grad_velocity[b, 1, y, x] = 0.0
+                    continue
+                vx = np.float64(velocity[b, 0, y, x])
+                vy = np.float64(velocity[b, 1, y, x])
+                g_vx = 0.0
+                g_vy = 0.0
+                for k in range(count):
+                    t = (2.0 * k + 1.0) / count - 1.0
+                    mass = np.float64(masses[count, k])
+                    column0, column1, row0, row1, fx, fy, inside_x, inside_y = _bilinear_setup(x - t * vx, y - t * vy, width, height)
+                    g_fx = 0.0
+                    g_fy = 0.0
+                    g_mass = 0.0
+                    for c in range(channels):
+                        g = np.float64(grad_out[b, c, y, x])
+                        slope_x, slope_y, c_y = _read_slopes(buffers, b, c, row0, row1, column0, column1, fx, fy)
+                        g_mass += g * c_y
+                        _scatter(mine, b, c, row0, row1, column0, column1, fx, fy, g * mass)
+                        g_fx += g * slope_x
+                        g_fy += g * slope_y
+                    grad_masses[chunk, count, k] += g_mass
+                    # The tap position is X - t V: the clamp at the border passes no gradient.
+                    if inside_x:
+                        g_vx -= mass * g_fx * t
+                    if inside_y:
+                        g_vy -= mass * g_fy * t
+                grad_velocity[b, 0, y, x] = g_vx
+                grad_velocity[b, 1, y, x] = g_vy
+
+
+def _channels_last_buffers(color: np.ndarray) -> np.ndarray:
+    batch, channels, height, width = color.shape
+    buffers = np.empty((batch, height, width, channels), dtype=color.dtype)
+    _channels_last(color, buffers)
+    return buffers
+
+
+@_jit
+def _gather_tile_counts(velocity, classes, still, tile, counts):
+    """counts (B, TH, TW): the taps of each tile's class from its largest |V|, as
+    `diffblur._adaptive.tile_sample_counts` (0 at most `still`, else the smallest class c with
+    2 |V| <= c, else the last)."""
+    batch, _, height, width = velocity.shape
+    _, tiles_y, tiles_x = counts.shape
+    for index in numba.prange(batch * tiles_y):
+        b = index // tiles_y
+        tile_y = index % tiles_y
+        for tile_x in range(tiles_x):
+            largest = 0.0
+            for y in range(tile_y * tile, min((tile_y + 1) * tile, height)):
+                for x in range(tile_x * tile, min((tile_x + 1) * tile, width)):
+                    vx = np.float64(velocity[b, 0, y, x])
+                    vy = np.float64(velocity[b, 1, y, x])
+                    largest = max(largest, vx * vx + vy * vy)
+            speed = math.sqrt(largest)
+            count = 0
+            if speed > still:
+                count = classes[-1]
+                for c in classes[::-1]:
+                    if 2.0 * speed <= c:
+                        count = c
+            counts[b, tile_y, tile_x] = count
+
+
+def _gather_counts(velocity: np.ndarray, samples: int, classes: tuple[int, ...] | None, still: float, tile: int) -> np.ndarray:
+    batch, _, height, width = velocity.shape
+    if classes is None:  # the full rate everywhere, one tile
+        return np.full((batch, 1, 1), samples, dtype=np.int32)
+    counts = np.empty((batch, -(-height // tile), -(-width // tile)), dtype=np.int32)
+    _gather_tile_counts(velocity, np.asarray(classes, dtype=np.int64), float(still), int(tile), counts)
+    return counts
+
+
+def gather_forward(
+    color: np.ndarray, velocity: np.ndarray, masses: np.ndarray, *, samples: int, classes: tuple[int, ...] | None, still: float, tile: int
+) -> np.ndarray:
+    """gather_blur, fused. color (B, C, H, W), velocity (B, 2, H, W), masses (S + 1, S) with row n
+    the masses of n taps, all C-contiguous, one float dtype. classes: the adaptive sample counts
+    (each tile of `tile` px takes its class's taps, 0 where its |V| <= still: the image), or None
+    for `samples` taps everywhere."""
+    batch, _, height, width = color.shape
+    out = np.empty_like(color)
+    chunks = min(batch * height, 4 * _threads())
+    counts = _gather_counts(velocity, samples, classes, still, tile)
+    _gather_forward(_channels_last_buffers(color), velocity, counts, masses, max(height, width) if classes is None else int(tile), row_order(batch * height), chunks, out)
+    return out
+
+
+def gather_backward(
+    color: np.ndarray,
+    velocity: np.ndarray,
+    masses: np.ndarray,
+    grad_out: np.ndarray,
+    *,
+    samples: int,
+    classes: tuple[int, ...] | None,
+    still: float,
+    tile: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gradients of `gather_forward`'s image w.r.t. color, velocity and masses."""
+    batch, channels, height, width = color.shape
+    chunks = min(_threads(), batch * height)
+    grads = np.zeros((chunks, batch, height, width, channels), dtype=color.dtype)
+    grad_velocity = np.empty_like(velocity)
+    grad_masses = np.zeros((chunks, *masses.shape), dtype=masses.dtype)
+    counts = _gather_counts(velocity, samples, classes, still, tile)
+    tile = max(height, width) if classes is None else int(tile)
+    _gather_backward(_channels_last_buffers(color), velocity, counts, masses, tile, row_order(batch * height), grad_out, grads, grad_velocity, grad_masses)
+    grad_color = np.empty_like(color)
+    _deinterleave_sum(grads, grad_color)
+    return grad_color, grad_velocity, grad_masses.sum(axis=0)

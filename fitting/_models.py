@@ -80,13 +80,13 @@ def _blur(ctx: Context, velocity: Any, shutter: Any = None) -> Any:
     """The configured op on a (1, 2, h, w) velocity field."""
     o = ctx.options
     shutter = o["shutter"] if shutter is None else shutter
+    # JAX's fused kernels have reverse-mode gradients only; LM and Dogleg take forward-mode Jacobians.
+    fused = False if ctx.be.name == "jax" and o.get("jac", "fwd") == "fwd" else None
     if o["method"] == "gather":
-        return ctx.be.ops.gather_blur(ctx.color, velocity, samples=o["samples"], shutter=shutter)
+        return ctx.be.ops.gather_blur(ctx.color, velocity, samples=o["samples"], shutter=shutter, fused=fused)
     # Seed 000's taps span S / (S + 1) of the exposure: scale the velocity so the blur spans all of it
     # and the parameters are the scene's (see recover's docstring).
     span = (o["samples"] + 1.0) / o["samples"]
-    # JAX's fused reconstruct has reverse-mode gradients only; LM and Dogleg take forward-mode Jacobians.
-    fused = False if ctx.be.name == "jax" and o.get("jac", "fwd") == "fwd" else None
     return ctx.be.ops.reconstruct(ctx.color, velocity * span, ctx.depth, samples=o["samples"], max_radius=o["max_radius"], shutter=shutter, fused=fused)
 
 

@@ -1,31 +1,49 @@
-"""`reconstruct` on the fused CPU kernel (`diffblur._fused`): a `custom_vjp` over `pure_callback`.
+"""`reconstruct` and `gather_blur` on the fused CPU kernels (`diffblur._fused`): `custom_vjp`s over
+`pure_callback`.
 
-The kernel runs on the host, inside or outside `jax.jit`; reverse mode (grad, vjp) uses the
-kernel's backward. Forward mode (jvp, jacfwd, linearize) is not defined for a custom_vjp: such
-callers pass fused=False. NeighborMax and the tile classes stay jax.numpy ops, so JAX carries the
-kernel's NeighborMax gradient back to the velocity as on the pure path.
+The kernels run on the host, inside or outside `jax.jit`; reverse mode (grad, vjp) uses the
+kernels' backward. Forward mode (jvp, jacfwd, linearize) is not defined for a custom_vjp: such
+callers pass fused=False. NeighborMax, the tile classes and the shutter's masses stay jax.numpy
+ops, so JAX carries the kernels' gradients w.r.t. NeighborMax and the masses back to the velocity
+and the shutter's parameters as on the pure path.
 """
 
 from __future__ import annotations
 
-from functools import partial
+from functools import lru_cache, partial
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from diffblur import _fused
+from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED
+from diffblur.taps import gather_tap_times, stratum_weights
 from jax_impl._primitives import _safe_length, neighbor_max, tile_max
+from jax_impl._sampling import widen_window
 
 
-def unfused_reason(o, color) -> str | None:
-    """Why the fused kernel cannot run these inputs and options, or None when it can."""
-    reason = _fused.reconstruct_unfused_reason(o, str(jnp.dtype(color.dtype)))
-    if reason is not None:
-        return reason
+def _backend_reason() -> str | None:
     if jax.default_backend() != "cpu":
         return f"JAX's default backend is {jax.default_backend()} (the fused kernel runs on the CPU)"
     return None
+
+
+def unfused_reason(o, color) -> str | None:
+    """Why the fused reconstruct cannot run these inputs and options, or None when it can."""
+    return _fused.reconstruct_unfused_reason(o, str(jnp.dtype(color.dtype))) or _backend_reason()
+
+
+def gather_unfused_reason(color, sampling: str, pyramid: bool) -> str | None:
+    """Why the fused gather_blur cannot run these inputs and options, or None when it can."""
+    return _fused.gather_unfused_reason(sampling, pyramid, str(jnp.dtype(color.dtype))) or _backend_reason()
+
+
+@lru_cache(maxsize=256)
+def _bound(function, settings):
+    """The same host callable for the same settings: eager pure_callback calls then hit JAX's cache
+    instead of compiling a new call each time."""
+    return partial(function, settings)
 
 
 def _host_forward(settings, color, velocity, depth, neighbors, counts, jitter):
@@ -46,7 +64,7 @@ def _forward(settings, color, velocity, depth, neighbors, counts, jitter):
     batch, _, height, width = color.shape
     shapes = (jax.ShapeDtypeStruct(color.shape, color.dtype), jax.ShapeDtypeStruct((batch, height, width), color.dtype))
     # "sequential" under vmap: the kernel already loops over its batch axis.
-    return jax.pure_callback(partial(_host_forward, settings), shapes, color, velocity, depth, neighbors, counts, jitter, vmap_method="sequential")
+    return jax.pure_callback(_bound(_host_forward, settings), shapes, color, velocity, depth, neighbors, counts, jitter, vmap_method="sequential")
 
 
 def _fused_core_fwd(settings, color, velocity, depth, neighbors, counts, jitter):
@@ -57,7 +75,7 @@ def _fused_core_fwd(settings, color, velocity, depth, neighbors, counts, jitter)
 def _fused_core_bwd(settings, residuals, grad_out):
     color, velocity, depth, neighbors, counts, jitter, _, _ = residuals
     shapes = tuple(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in (color, velocity, depth, neighbors))
-    grads = jax.pure_callback(partial(_host_backward, settings), shapes, *residuals, grad_out, vmap_method="sequential")
+    grads = jax.pure_callback(_bound(_host_backward, settings), shapes, *residuals, grad_out, vmap_method="sequential")
     # counts are integers (float0 cotangent); jitter gets no gradient on the fused path.
     return (*grads, np.zeros(counts.shape, dtype=jax.dtypes.float0), jnp.zeros_like(jitter))
 
@@ -74,3 +92,49 @@ def fused_reconstruct(color, velocity, depth, jitter, o):
     jitter = jnp.broadcast_to(jitter, (jitter.shape[0], 1, *color.shape[2:]))
     return _fused_core(settings, color, velocity, depth, neighbors, counts.astype(jnp.int32), jitter)
 
+
+
+def _host_gather_forward(settings, color, velocity, masses):
+    return _fused.gather_forward(*(np.ascontiguousarray(a) for a in (color, velocity, masses)), **dict(settings))
+
+
+def _host_gather_backward(settings, *arrays):
+    return _fused.gather_backward(*(np.ascontiguousarray(a) for a in arrays), **dict(settings))
+
+
+@partial(jax.custom_vjp, nondiff_argnums=(0,))
+def _fused_gather_core(settings, color, velocity, masses):
+    shape = jax.ShapeDtypeStruct(color.shape, color.dtype)
+    return jax.pure_callback(_bound(_host_gather_forward, settings), shape, color, velocity, masses, vmap_method="sequential")
+
+
+def _fused_gather_core_fwd(settings, color, velocity, masses):
+    return _fused_gather_core(settings, color, velocity, masses), (color, velocity, masses)
+
+
+def _fused_gather_core_bwd(settings, residuals, grad_out):
+    shapes = tuple(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in residuals)
+    return jax.pure_callback(_bound(_host_gather_backward, settings), shapes, *residuals, grad_out, vmap_method="sequential")
+
+
+_fused_gather_core.defvjp(_fused_gather_core_fwd, _fused_gather_core_bwd)
+
+
+def fused_gather(color, velocity, window, samples: int, classes: tuple[int, ...] | None, wide):
+    """gather_blur (full rate, or the adaptive `classes`) on the fused kernel; see `gather_unfused_reason`.
+    The kernel sizes the adaptive classes itself, from the velocity."""
+    settings = (("samples", samples), ("classes", classes), ("still", STILL_SPEED), ("tile", ADAPTIVE_TILE))
+    table = _fused.constant_gather_masses(window, samples, classes or (samples,))
+    if table is not None:
+        table = jnp.asarray(table, dtype=color.dtype)
+    else:  # a shutter parameter to fit: the table is built by jax.numpy ops, which carry its gradient
+        window = widen_window(window, wide)
+        rows = []
+        for count in range(samples + 1):  # row n: the masses of n taps, zeros where no class has n
+            if count in (classes or (samples,)):
+                masses = stratum_weights(window, jnp.asarray(gather_tap_times(count), dtype=wide), 1.0 / count, jnp)
+                rows.append(jnp.pad((masses / masses.sum()).astype(wide), (0, samples - count)))
+            else:
+                rows.append(jnp.zeros(samples, dtype=wide))
+        table = jnp.stack(rows).astype(color.dtype)
+    return _fused_gather_core(settings, color, velocity, table)

@@ -27,6 +27,7 @@ def gather_blur(
     sampling: str = "bilinear",
     adaptive: bool | tuple[int, ...] = False,
     pyramid: bool = False,
+    fused: bool | None = None,
 ) -> Float[Tensor, "b c h w"]:
     """Blur each pixel along its own velocity, weighted by the shutter (seed 001's gather).
 
@@ -43,12 +44,20 @@ def gather_blur(
         adaptive: tiled adaptive sampling (seed 001): each 16 x 16 tile's largest |V| picks the
             fewest taps among a few classes that give one tap per pixel travelled (True: 3, 7,
             15, ... up to samples; or a tuple of odd counts); tiles with no motion (|V| <= 0.001
-            px) return the image. Tiles of the full-rate class get the full-rate result. Each
-            class runs on its tiles' pixels only in eager mode; under compilation every class
-            runs on every pixel and is selected per tile (same result, no saving).
+            px) return the image. Tiles of the full-rate class get the full-rate result. On the
+            fused path (see `fused`) each tile takes its class's taps inside the kernel. On the
+            tensor ops each class runs on its tiles' pixels only in eager mode; under
+            compilation every class runs on every pixel and is selected per tile (same result,
+            no saving).
         pyramid: where the taps are farther apart than a pixel (2 |V| / samples > 1), read the
             colour from a pre-filtered pyramid level (seed 001's texture-space blur), trilinearly,
             so fewer taps than pixels travelled still give a smooth streak; needs "bilinear".
+        fused: run the gather and its backward in one parallel CPU loop (`diffblur._fused`,
+            numba) instead of tensor ops: same result and gradients (tested, the shutter's
+            parameters included). None (default): fused where it applies (CPU, float32/float64,
+            bilinear, no pyramid, eager mode; any shutter, adaptive sampling included), tensor
+            ops elsewhere. True: fused or a ValueError saying why not. False: always the tensor
+            ops. The fused backward is not differentiable again (no double backward).
 
     Returns:
         (B, C, H, W), color's dtype. Positions beyond the border read the border pixel.
@@ -72,6 +81,14 @@ def gather_blur(
     window = get_shutter(shutter)
     classes = adaptive_classes(adaptive, samples)
     pyramid = pyramid_option(pyramid, adaptive, sampling)
+    if fused is not False:
+        from torch_impl._fused import fused_gather, gather_unfused_reason
+
+        reason = gather_unfused_reason(color, sampling, pyramid)
+        if reason is None:
+            return fused_gather(color, velocity, window, samples, classes, position_dtype(color.dtype))
+        if fused:
+            raise ValueError(f"gather_blur(fused=True) cannot run: {reason}")
     if classes is not None:
         from torch_impl._adaptive import adaptive_gather
 

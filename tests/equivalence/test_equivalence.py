@@ -173,6 +173,10 @@ def test_torch_gradcheck(case):
     assert torch.autograd.gradcheck(fn, [args[n] for n in names], eps=1e-6, atol=1e-6, rtol=1e-5)
 
 
+#: Ops whose default CPU path is a fused kernel (diffblur._fused), by case-name prefix.
+FUSED_OPS = ("reconstruct", "gather_blur")
+
+
 @pytest.mark.parametrize("case", SMOOTH_CASES, ids=smooth_ids)
 def test_jax_check_grads(case):
     args = jax_inputs(case.inputs(), "float64")
@@ -183,11 +187,11 @@ def test_jax_check_grads(case):
         return case.jax_op(**fixed, **dict(zip(names, diff_values)))
 
     values = [args[n] for n in names]
-    if not case.name.startswith("reconstruct"):
+    if not case.name.startswith(FUSED_OPS):
         check_grads(fn, values, order=1, modes=("fwd", "rev"), eps=1e-6, atol=1e-6, rtol=1e-5)
         return
-    # reconstruct's default CPU path is the fused kernel, reverse mode only (a custom_vjp); forward
-    # mode is checked on the tensor ops.
+    # These ops' default CPU path is a fused kernel, reverse mode only (a custom_vjp); forward mode
+    # is checked on the tensor ops.
     check_grads(fn, values, order=1, modes=("rev",), eps=1e-6, atol=1e-6, rtol=1e-5)
 
     def tensor_ops(*diff_values):
