@@ -10,9 +10,9 @@ image. A tile whose class is the full rate gets exactly the full-rate filter's r
 The backends make the saving real by grouping the tiles of each class and running that class's
 filter on the compacted pixels of its tiles only (eager mode). Under `torch.compile` / `jax.jit`
 the classes are data the compiler cannot size, so the backends compute every class on every pixel
-and select per tile: the same result, no saving (`ADAPTIVE_COMPILED_NOTE`). `reconstruct`'s fused
-CPU path (`diffblur._fused`) takes the per-tile counts into its kernel instead, which saves the
-work eagerly and under `jax.jit` alike.
+and select per tile: the same result, no saving (`ADAPTIVE_COMPILED_NOTE`). The fused CPU paths of
+`reconstruct` and `gather_blur` (`diffblur._fused`) take the per-tile counts into their kernels
+instead, which saves the work eagerly and under `jax.jit` alike.
 """
 
 from __future__ import annotations

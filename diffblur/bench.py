@@ -128,6 +128,8 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("reconstruct", "S=15, bilinear, gaussian shutter", _reconstruct(samples=15, shutter="gaussian"), _RV, _RV),
     Setting("gather_blur", "S=5, bilinear", _gather(samples=5), _CV, _CV, quick=True),
     Setting("gather_blur", "S=15, bilinear", _gather(samples=15), _CV, _CV),
+    Setting("gather_blur", "S=15, bilinear, tensor ops", _gather(samples=15, fused=False), _CV, _CV),
+    Setting("gather_blur", "S=15, bilinear, adaptive", _gather(samples=15, adaptive=True), _CV, _CV),
     Setting("gather_blur", "S=31, bilinear", _gather(samples=31), _CV, _CV),
     Setting("gather_blur", "S=15, nearest", _gather(samples=15, sampling="nearest"), _CV, _CV),
     Setting("bezier_scatter", "degree 1, 16 points", _scatter(degree=1, samples=16, shutter="box"), _SC, _SC),

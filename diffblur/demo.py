@@ -104,10 +104,10 @@ def fit_motion(scene_name: str, *, size: int = FIT_SIZE) -> tuple[object, list[D
     sharp frame and the ground-truth blur, on both backends: gather with 9 taps, L-BFGS, 3 levels
     coarse to fine, the 3 px around ID changes left out of the residual (mutual occlusion)."""
     import fitting
-    from diffblur.scenes import render
+    from fitting.scenes import layer_ids
 
     scene = make_scene(scene_name, height=size, width=size)
-    ids = np.maximum(render(scene.scene, 0.0).layer, 0).astype(np.int64)
+    ids = layer_ids(scene)
     true_palette = np.stack([scene.velocity[0][:, ids[0, 0] == i].mean(axis=1) for i in range(int(ids.max()) + 1)])
     fits = []
     for backend in ("torch", "jax"):

@@ -30,10 +30,11 @@ from diffblur.scenes import (
     stripes,
 )
 
-__all__ = ["pan", "propeller", "translation", "two_objects"]
+__all__ = ["layer_ids", "pan", "propeller", "translation", "two_objects"]
 
 
-def _ids(buffers: SceneBuffers) -> np.ndarray:
+def layer_ids(buffers: SceneBuffers) -> np.ndarray:
+    """Motion IDs (B, 1, H, W) int64: the index of the layer seen at each pixel at mid-exposure."""
     return np.maximum(render(buffers.scene, 0.0).layer, 0).astype(np.int64)
 
 
@@ -41,7 +42,7 @@ def translation(size: int = 48, velocity: tuple[float, float] = (3.0, -1.5), *, 
     """A photograph translating by `velocity` (half-spread, pixels) as a whole: one global velocity."""
     tex = ImageTexture(photo("coffee", size + 2 * margin, size + 2 * margin), origin=(-margin, -margin))
     buffers = render_buffers(Scene(size, size, (Layer(tex, 5.0, Translation(velocity)),)), shutter=shutter)
-    return buffers, _ids(buffers), {"velocity": list(velocity)}
+    return buffers, layer_ids(buffers), {"velocity": list(velocity)}
 
 
 def _card(size: int, center: tuple[float, float], half: float, paint: np.ndarray) -> ImageTexture:
@@ -61,7 +62,7 @@ def pan(size: int = 48, velocity: tuple[float, float] = (2.5, 1.0)) -> tuple[Sce
     layers = (Layer(background, depth, Static(), "background"), Layer(card, depth * 0.999, Static(), "card"))
     camera = Camera(pan=(velocity[0] * depth, velocity[1] * depth))
     buffers = render_buffers(Scene(size, size, layers, camera), shutter="box")
-    return buffers, _ids(buffers), {"velocity": list(velocity)}
+    return buffers, layer_ids(buffers), {"velocity": list(velocity)}
 
 
 def two_objects(size: int = 48, first: tuple[float, float] = (2.5, 1.0), second: tuple[float, float] = (-1.0, 2.0)) -> tuple[SceneBuffers, np.ndarray, dict]:
@@ -75,7 +76,7 @@ def two_objects(size: int = 48, first: tuple[float, float] = (2.5, 1.0), second:
     card = pad(photo("chelsea", n, n, zoom=1.3, focus=(0.45, 0.4)), np.ones((n, n)), (int(0.3 * size), int(0.25 * size)))
     layers = (Layer(background, 20.0, Translation(first), "background"), Layer(card, 5.0, Translation(second), "card"))
     buffers = render_buffers(Scene(size, size, layers), shutter="box")
-    return buffers, _ids(buffers), {"palette": [list(first), list(second)]}
+    return buffers, layer_ids(buffers), {"palette": [list(first), list(second)]}
 
 
 def propeller(size: int = 48, angle: float = 0.5) -> tuple[SceneBuffers, np.ndarray, dict]:
@@ -84,4 +85,4 @@ def propeller(size: int = 48, angle: float = 0.5) -> tuple[SceneBuffers, np.ndar
     layers = tuple(dataclasses.replace(layer, motion=Rotation(layer.motion.center, angle)) if isinstance(layer.motion, Rotation) else layer for layer in base.layers)
     center = next(layer.motion.center for layer in base.layers if isinstance(layer.motion, Rotation))
     buffers = render_buffers(Scene(base.height, base.width, layers, base.camera), shutter="box")
-    return buffers, _ids(buffers), {"center": list(center), "angle": angle}
+    return buffers, layer_ids(buffers), {"center": list(center), "angle": angle}
