@@ -1,67 +1,157 @@
-"""Measure reconstruct's fused CPU path against the tensor ops and kornia (README, "The fused CPU path").
+"""Measure the fused CPU kernels (diffblur._fused) against the tensor ops and kornia, in one run.
 
-Part 1: 1280x720 uniform pan, float32, S=15, forward and forward+backward, both frameworks.
-Part 2: adaptive sampling on a 512x512 scene that is 90 % still, fused and tensor ops.
-Run: PYTHONPATH=. python scripts/measure_fused.py
+Part 1, the design's targets: 1280x720 uniform pan, float32, S=15, forward and forward+backward
+(w.r.t. every differentiable input), `reconstruct` and `gather_blur` in PyTorch (eager) and JAX
+(jitted, compile time reported apart), and kornia's motion_blur (kernel 31, bilinear, backward
+w.r.t. the image and the angle).
+Part 2, adaptive sampling: a 512x512 scene that is 90 % still, full rate against adaptive=True, both
+ops, both frameworks (JAX jitted), fused and tensor ops, with the largest output difference.
+
+Times are medians of `--repeats` runs after one warm-up, in milliseconds.
+
+    PYTHONPATH=. python scripts/measure_fused.py [--repeats 3] [--only targets|adaptive]
 """
-import time, numpy as np, torch, jax, jax.numpy as jnp, kornia
-jax.config.update("jax_enable_x64", False)
-import torch_impl, jax_impl
-from diffblur.bench import uniform_scene, _inputs
-x = _inputs(uniform_scene(height=720, width=1280))
-def med(f, n=3):
-    f(); ts=[]
-    for _ in range(n):
-        t0=time.perf_counter(); f(); ts.append(time.perf_counter()-t0)
-    return round(float(np.median(ts))*1e3)
-res = {}
-tc, tv, td = (torch.from_numpy(x[k]) for k in ("color","velocity","depth"))
-def tfb(fused, samples=15, **kw):
-    def run():
-        c, v, d = (t.clone().requires_grad_() for t in (tc, tv, td))
-        torch_impl.reconstruct(c, v, d, samples=samples, fused=fused, **kw).sum().backward()
-    return run
-for fused in (True, False):
-    res[f"torch fused={fused} fwd"] = med(lambda: torch_impl.reconstruct(tc, tv, td, samples=15, fused=fused))
-    res[f"torch fused={fused} fwd+bwd"] = med(tfb(fused), 2 if not fused else 3)
-res["torch fused S=31 fwd"] = med(lambda: torch_impl.reconstruct(tc, tv, td, samples=31, fused=True))
-angle = torch.tensor(x["angle"])
-res["kornia k31 fwd"] = med(lambda: kornia.filters.motion_blur(tc, 31, angle, 0.0, border_type="replicate", mode="bilinear"))
-def kfb():
-    c = tc.clone().requires_grad_(); a = angle.clone().requires_grad_()
-    kornia.filters.motion_blur(c, 31, a, 0.0, border_type="replicate", mode="bilinear").sum().backward()
-res["kornia k31 fwd+bwd"] = med(kfb)
-jc, jv, jd = (jnp.asarray(x[k]) for k in ("color","velocity","depth"))
-for fused in (True, False):
-    f = jax.jit(lambda c,v,d: jax_impl.reconstruct(c,v,d, samples=15, fused=fused))
-    g = jax.jit(jax.grad(lambda c,v,d: jnp.sum(jax_impl.reconstruct(c,v,d, samples=15, fused=fused)), argnums=(0,1,2)))
-    t0=time.perf_counter(); jax.block_until_ready(f(jc,jv,jd)); res[f"jax fused={fused} compile+first fwd"] = round((time.perf_counter()-t0)*1e3)
-    res[f"jax fused={fused} fwd"] = med(lambda: jax.block_until_ready(f(jc,jv,jd)))
-    res[f"jax fused={fused} fwd+bwd"] = med(lambda: jax.block_until_ready(g(jc,jv,jd)), 2 if not fused else 3)
-for k, v in res.items(): print(f"{k}: {v} ms", flush=True)
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(__file__))
 
 
-# Part 2
-H = W = 512
-rng = np.random.default_rng(0)
-color = rng.random((1,3,H,W)).astype(np.float32)
-vel = np.zeros((1,2,H,W), np.float32); vel[:, 0, 200:362, 200:362] = 8.0  # 162x162 ~ 10% of pixels
-depth = np.ones((1,1,H,W), np.float32); depth[:, :, 200:362, 200:362] = 0.5
-print("moving fraction", (vel[0,0]!=0).mean())
-tc, tv, td = map(torch.from_numpy, (color, vel, depth))
-jc, jv, jd = map(jnp.asarray, (color, vel, depth))
-for name, fused in (("fused", None), ("tensor ops", False)):
-    for fw in ("torch", "jax"):
-        if fw == "torch":
-            full = med(lambda: torch_impl.reconstruct(tc, tv, td, samples=15, fused=fused))
-            ada = med(lambda: torch_impl.reconstruct(tc, tv, td, samples=15, adaptive=True, fused=fused))
-            d = (torch_impl.reconstruct(tc, tv, td, samples=15, adaptive=True, fused=fused) - torch_impl.reconstruct(tc, tv, td, samples=15, fused=fused)).abs()
-        else:
-            if fused is None:
-                f1 = jax.jit(lambda c,v,d: jax_impl.reconstruct(c,v,d, samples=15)); f2 = jax.jit(lambda c,v,d: jax_impl.reconstruct(c,v,d, samples=15, adaptive=True))
-            else:
-                f1 = jax.jit(lambda c,v,d: jax_impl.reconstruct(c,v,d, samples=15, fused=False)); f2 = lambda c,v,d: jax_impl.reconstruct(c,v,d, samples=15, adaptive=True, fused=False)
-            full = med(lambda: jax.block_until_ready(f1(jc,jv,jd)))
-            ada = med(lambda: jax.block_until_ready(f2(jc,jv,jd)))
-            d = np.abs(np.asarray(f2(jc,jv,jd)) - np.asarray(f1(jc,jv,jd)))
-        print(f"{name} {fw}: full {full:.1f} ms, adaptive {ada:.1f} ms, speed-up {full/ada:.1f}x, max diff {float(d.max()):.2e}", flush=True)
+def median_ms(fn, repeats: int) -> float:
+    fn()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return 1e3 * statistics.median(times)
+
+
+def _torch_pair(op, arrays, options, repeats):
+    """Forward and forward+backward times of a torch_impl op on float32 CPU tensors."""
+    import torch
+
+    import torch_impl
+
+    fn = getattr(torch_impl, op)
+
+    def forward():
+        with torch.no_grad():
+            fn(*arrays, **options)
+
+    def forward_backward():
+        inputs = [a.clone().requires_grad_() for a in arrays]
+        fn(*inputs, **options).sum().backward()
+
+    return median_ms(forward, repeats), median_ms(forward_backward, repeats)
+
+
+def _jax_pair(op, arrays, options, repeats):
+    """Compile+first-call, forward and forward+backward times of a jitted jax_impl op."""
+    import jax
+    import jax.numpy as jnp
+
+    import jax_impl
+
+    fn = getattr(jax_impl, op)
+    forward = jax.jit(lambda *a: fn(*a, **options))
+    gradient = jax.jit(jax.grad(lambda *a: jnp.sum(fn(*a, **options)), argnums=tuple(range(len(arrays)))))
+    start = time.perf_counter()
+    jax.block_until_ready(forward(*arrays))
+    compile_ms = 1e3 * (time.perf_counter() - start)
+    return (
+        compile_ms,
+        median_ms(lambda: jax.block_until_ready(forward(*arrays)), repeats),
+        median_ms(lambda: jax.block_until_ready(gradient(*arrays)), repeats),
+    )
+
+
+def targets(repeats: int) -> None:
+    import jax.numpy as jnp
+    import kornia
+    import torch
+
+    from diffblur.bench import _inputs, uniform_scene
+
+    scene = _inputs(uniform_scene(height=720, width=1280))
+    names = {"reconstruct": ("color", "velocity", "depth"), "gather_blur": ("color", "velocity")}
+    print("1280x720 uniform pan, float32, S=15 (ms)")
+    print(f"{'op':<12} {'path':<11} {'torch fwd':>10} {'torch f+b':>10} {'jax compile':>12} {'jax fwd':>9} {'jax f+b':>9}")
+    for op, keys in names.items():
+        for path, fused in (("fused", None), ("tensor ops", False)):
+            options = dict(samples=15, fused=fused)
+            torch_fwd, torch_both = _torch_pair(op, [torch.from_numpy(scene[k]) for k in keys], options, repeats)
+            compile_ms, jax_fwd, jax_both = _jax_pair(op, [jnp.asarray(scene[k]) for k in keys], options, repeats)
+            print(f"{op:<12} {path:<11} {torch_fwd:10.0f} {torch_both:10.0f} {compile_ms:12.0f} {jax_fwd:9.0f} {jax_both:9.0f}", flush=True)
+    color, angle = torch.from_numpy(scene["color"]), torch.tensor(scene["angle"])
+
+    def kornia_forward():
+        with torch.no_grad():
+            kornia.filters.motion_blur(color, 31, angle, 0.0, border_type="replicate", mode="bilinear")
+
+    def kornia_forward_backward():
+        image, direction = color.clone().requires_grad_(), angle.clone().requires_grad_()
+        kornia.filters.motion_blur(image, 31, direction, 0.0, border_type="replicate", mode="bilinear").sum().backward()
+
+    print(f"kornia motion_blur k=31: forward {median_ms(kornia_forward, repeats):.0f}, forward+backward {median_ms(kornia_forward_backward, repeats):.0f}")
+
+
+def adaptive(repeats: int) -> None:
+    import jax
+    import jax.numpy as jnp
+    import torch
+
+    import jax_impl
+    import torch_impl
+    from measure_issue7 import still_scene
+
+    scene = still_scene(512)
+    print("512x512, 90 % still, float32, S=15, forward (ms); JAX jitted")
+    for op in ("gather_blur", "reconstruct"):
+        count = 2 if op == "gather_blur" else 3
+        for path, fused in (("fused", None), ("tensor ops", False)):
+            for framework in ("torch", "jax"):
+                if framework == "torch":
+                    arrays = [torch.from_numpy(a) for a in scene[:count]]
+                    fn = getattr(torch_impl, op)
+                    full = lambda fn=fn, arrays=arrays: fn(*arrays, samples=15, fused=fused).numpy()  # noqa: E731
+                    tiled = lambda fn=fn, arrays=arrays: fn(*arrays, samples=15, adaptive=True, fused=fused).numpy()  # noqa: E731
+                else:
+                    arrays = [jnp.asarray(a) for a in scene[:count]]
+                    fn = getattr(jax_impl, op)
+                    full_jit = jax.jit(lambda *a, fn=fn: fn(*a, samples=15, fused=fused))
+                    tiled_jit = jax.jit(lambda *a, fn=fn: fn(*a, samples=15, adaptive=True, fused=fused))
+                    full = lambda f=full_jit, arrays=arrays: np.asarray(f(*arrays))  # noqa: E731
+                    tiled = lambda f=tiled_jit, arrays=arrays: np.asarray(f(*arrays))  # noqa: E731
+                with torch.no_grad():
+                    difference = float(np.abs(full() - tiled()).max())
+                    full_ms, tiled_ms = median_ms(full, repeats), median_ms(tiled, repeats)
+                print(
+                    f"{op:<12} {path:<11} {framework:<6} full {full_ms:7.1f}  adaptive {tiled_ms:6.1f}  "
+                    f"{full_ms / tiled_ms:4.1f}x  max difference {difference:.1e}",
+                    flush=True,
+                )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--only", choices=("targets", "adaptive"))
+    arguments = parser.parse_args()
+    print(f"{os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}")
+    if arguments.only != "adaptive":
+        targets(arguments.repeats)
+    if arguments.only != "targets":
+        adaptive(arguments.repeats)
+
+
+if __name__ == "__main__":
+    main()
