@@ -368,7 +368,7 @@ def _machine(load_before: tuple[float, float, float]) -> dict:
     except OSError:
         pass
     versions = {"python": platform.python_version(), "numpy": np.__version__}
-    for name in ("torch", "jax", "jaxlib", "kornia"):
+    for name in ("torch", "jax", "jaxlib", "kornia", "numba"):
         module = sys.modules.get(name)
         if module is not None:
             versions[name] = getattr(module, "__version__", "?")
@@ -378,10 +378,12 @@ def _machine(load_before: tuple[float, float, float]) -> dict:
         threads = torch.get_num_threads()
     except ImportError:
         threads = None
+    numba = sys.modules.get("numba")
     return {
         "cpu": model,
         "cores": os.cpu_count(),
         "torch_threads": threads,
+        "numba_threads": numba.get_num_threads() if numba is not None else None,
         "platform": platform.platform(),
         "versions": versions,
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
@@ -443,8 +445,8 @@ def run_benchmarks(
     """Run the sweep, write BENCHMARKS.md, docs/benchmarks.json and docs/pareto.png under out_dir,
     and return the results ({"machine": ..., "rows": [...], "targets": [...]}).
 
-    threads: PyTorch intra-op threads (and, at 1, XLA's Eigen thread pool off; set before JAX starts);
-    None keeps the frameworks' defaults.
+    threads: PyTorch intra-op and fused-kernel (numba) threads (and, at 1, XLA's Eigen thread pool off;
+    set before JAX starts); None keeps the frameworks' defaults.
     quick: the entries marked quick, scenes "uniform" and "crossing", 1 repeat, no targets pass.
     scenes: preset names and/or "uniform" (default: all). repeats: timed runs per measurement
     (default 3, quick 1). targets: run TARGET_SETTINGS at target_height x target_width (default:
@@ -475,11 +477,20 @@ def run_benchmarks(
 
             previous_threads = torch.get_num_threads()
             torch.set_num_threads(threads)
+        from diffblur import _fused
+
+        if _fused.available():  # the fused kernels' thread pool
+            import numba
+
+            previous_numba_threads = numba.get_num_threads()
+            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     try:
         return _run(quick, height, width, scenes, backends, repeats, targets, target_repeats, target_height, target_width, threads, out_dir, progress, settings, instants, load_before)
     finally:
         if threads is not None and "torch" in backends:
             torch.set_num_threads(previous_threads)
+        if threads is not None and _fused.available():
+            numba.set_num_threads(previous_numba_threads)
 
 
 def _run(quick, height, width, scenes, backends, repeats, targets, target_repeats, target_height, target_width, threads, out_dir, progress, settings, instants, load_before):
@@ -651,7 +662,7 @@ def _markdown(results: dict) -> str:
         "",
         f"- date: {m['date']}",
         *([f"- {results['note']}"] if results.get("note") else []),
-        f"- machine: {m['cpu']}, {m['cores']} cores visible, torch threads {m['torch_threads']}, XLA_FLAGS '{m.get('xla_flags', '')}', {m['device']}; {m['platform']}",
+        f"- machine: {m['cpu']}, {m['cores']} cores visible, torch threads {m['torch_threads']}, numba threads (fused kernels) {m.get('numba_threads')}, XLA_FLAGS '{m.get('xla_flags', '')}', {m['device']}; {m['platform']}",
         f"- versions: {versions}",
         f"- load average (1, 5, 15 min) before: {', '.join(f'{v:.2f}' for v in m['load_before'])}; after: {', '.join(f'{v:.2f}' for v in m['load_after'])}",
         f"- timings: median of {results['repeats']} runs after one warm-up, float32, one image; PyTorch eager (forward under no_grad), "

@@ -83,7 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--size", type=int, default=160, help="scene height and width in pixels (default: 160)")
     bench.add_argument("--scenes", default=None, help="comma-separated scenes: 'uniform' and the presets (default: all)")
     bench.add_argument("--backends", default="torch,jax", help="comma-separated: torch, jax (default: both)")
-    bench.add_argument("--threads", type=int, default=None, help="PyTorch threads (1 also turns XLA's thread pool off); default: the frameworks' own")
+    bench.add_argument("--threads", type=int, default=None, help="PyTorch and fused-kernel (numba) threads (1 also turns XLA's thread pool off); default: the frameworks' own")
     bench.add_argument("--repeats", type=int, default=None, help="timed runs per measurement (default: 3, quick: 1)")
     bench.add_argument("--targets", action=argparse.BooleanOptionalAction, default=None, help="run the 1280x720 performance targets (default: unless --quick)")
     bench.set_defaults(run=_bench)
