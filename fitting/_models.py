@@ -324,6 +324,9 @@ class RotationModel(Model):
         o = ctx.options
         center = ctx.be.broadcast(p["center"].reshape(1, 2, 1, 1), (1, 2, ctx.height, ctx.width))
         kwargs = {} if ctx.extras.get("background") is None else {"background": ctx.extras["background"]}
+        # JAX's fused scatter has reverse-mode gradients only; LM and Dogleg take forward-mode Jacobians.
+        if ctx.be.name == "jax" and o.get("jac", "fwd") == "fwd":
+            kwargs["fused"] = False
         return ctx.be.ops.bezier_scatter(
             ctx.color, ctx.depth, None, None, arc_center=center, arc_angle=p["angle"] * ctx.extras["mask"], samples=o["arc_samples"], shutter=o["shutter"], **kwargs
         )

@@ -64,8 +64,8 @@ def _with_slope_and_extent(rng):
 
 
 def _arc_call(op, options):
-    def call(color, depth, arc_center, arc_angle, background):
-        return op(color, depth, None, None, arc_center=arc_center, arc_angle=arc_angle, background=background, **options)
+    def call(color, depth, arc_center, arc_angle, background, **extra):
+        return op(color, depth, None, None, arc_center=arc_center, arc_angle=arc_angle, background=background, **options, **extra)
 
     return call
 

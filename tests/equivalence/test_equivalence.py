@@ -173,8 +173,8 @@ def test_torch_gradcheck(case):
     assert torch.autograd.gradcheck(fn, [args[n] for n in names], eps=1e-6, atol=1e-6, rtol=1e-5)
 
 
-#: Ops whose default CPU path is a fused kernel (diffblur._fused), by case-name prefix.
-FUSED_OPS = ("reconstruct", "gather_blur")
+#: Ops whose default CPU path is a fused kernel (diffblur._fused, diffblur._fused_scatter), by case-name prefix.
+FUSED_OPS = ("reconstruct", "gather_blur", "bezier_scatter")
 
 
 @pytest.mark.parametrize("case", SMOOTH_CASES, ids=smooth_ids)
