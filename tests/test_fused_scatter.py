@@ -171,6 +171,19 @@ def test_jax_shutter_parameter_and_extent_gradients_under_jit():
         np.testing.assert_allclose(float(f), float(p), rtol=1e-10)
 
 
+@pytest.mark.parametrize("channels", [1, 4])
+def test_channel_counts_other_than_three(channels):
+    """The kernels take colour in groups of three channels: one padded group, and a group and a half."""
+    arrays = _scene(seed=4)
+    rng = np.random.default_rng(5)
+    for name in ("color", "background", "cotangent"):
+        arrays[name] = rng.random((BATCH, channels, HEIGHT, WIDTH))
+    for path, fill in (("degree 2", "still"), ("arc", "background")):
+        options = dict(samples=5, normalization="paper")
+        _assert_close(_torch_run(arrays, path, options, True, fill), _torch_run(arrays, path, options, False, fill), 1e-10)
+    _assert_close(_jax_run(arrays, "degree 1", dict(samples=5), True), _jax_run(arrays, "degree 1", dict(samples=5), False), 1e-10)
+
+
 @pytest.mark.parametrize("path", ["degree 2", "arc"])
 def test_float32_both_frameworks_agree(path):
     arrays = _scene(np.float32, seed=3)
