@@ -15,8 +15,15 @@ padded by a one-pixel ring, adding omega [color, 1]. The kernels repeat the tens
 (the same floors, `where` branches and soft-depth band, so the same one-sided derivatives) in
 float64 scalars, reading and writing the arrays' dtype.
 
-Splats land anywhere: each chunk of source rows sums into its own padded (B, H + 2, W + 2, C + 1)
-buffer (the backward: its own (B, H, W) destination-depth gradient), and the chunks are summed.
+Splats land anywhere: each chunk of source rows (one per thread) sums into its own buffer of the
+padded image's cells, channels last, and the chunks are summed (the backward: its own padded depth
+gradient, whose ring then folds onto the border it repeats); memory O(pixels x threads), never
+O(pixels x points). The kernels take the colour three channels at a time (`GROUP`), which keeps it
+in registers; C = 3 runs once, other counts in ceil(C / 3) runs.
+
+Measured (scripts/measure_fused_scatter.py, 1280x720 float32, 16 points, 2 cores): the forward
+kernel ~150 ms, the backward ~340 ms; a point costs ~20 ns forward on one core, most of it the 16
+read-modify-writes of its 4 cells.
 """
 
 from __future__ import annotations
