@@ -327,7 +327,9 @@ def _splat_backward(
                         gy = 1.0 - fy
                         cell = (b * (height + 2) + top) * stride + left
                         z = np.float64(padded_depth[b, top, left])
-                        g00, g_weight, g_z, g_e, d_red, d_green, d_blue = _corner_backward(grad_cells, cell, z, z_source, extent, inverse_extent, gx * gy, weight, rgb)
+                        g00, g_weight, g_z, g_e, d_red, d_green, d_blue = _corner_backward(
+                            grad_cells, cell, z, z_source, extent, inverse_extent, gx * gy, weight, rgb
+                        )
                         depth_grads[b, top, left] -= g_z
                         g_z_source += g_z
                         g_extent += g_e
@@ -335,7 +337,9 @@ def _splat_backward(
                         g_green += d_green
                         g_blue += d_blue
                         z = np.float64(padded_depth[b, top, left + 1])
-                        g01, g_w, g_z, g_e, d_red, d_green, d_blue = _corner_backward(grad_cells, cell + 1, z, z_source, extent, inverse_extent, fx * gy, weight, rgb)
+                        g01, g_w, g_z, g_e, d_red, d_green, d_blue = _corner_backward(
+                            grad_cells, cell + 1, z, z_source, extent, inverse_extent, fx * gy, weight, rgb
+                        )
                         depth_grads[b, top, left + 1] -= g_z
                         g_weight += g_w
                         g_z_source += g_z
@@ -344,7 +348,9 @@ def _splat_backward(
                         g_green += d_green
                         g_blue += d_blue
                         z = np.float64(padded_depth[b, top + 1, left])
-                        g10, g_w, g_z, g_e, d_red, d_green, d_blue = _corner_backward(grad_cells, cell + stride, z, z_source, extent, inverse_extent, gx * fy, weight, rgb)
+                        g10, g_w, g_z, g_e, d_red, d_green, d_blue = _corner_backward(
+                            grad_cells, cell + stride, z, z_source, extent, inverse_extent, gx * fy, weight, rgb
+                        )
                         depth_grads[b, top + 1, left] -= g_z
                         g_weight += g_w
                         g_z_source += g_z
@@ -353,7 +359,9 @@ def _splat_backward(
                         g_green += d_green
                         g_blue += d_blue
                         z = np.float64(padded_depth[b, top + 1, left + 1])
-                        g11, g_w, g_z, g_e, d_red, d_green, d_blue = _corner_backward(grad_cells, cell + stride + 1, z, z_source, extent, inverse_extent, fx * fy, weight, rgb)
+                        g11, g_w, g_z, g_e, d_red, d_green, d_blue = _corner_backward(
+                            grad_cells, cell + stride + 1, z, z_source, extent, inverse_extent, fx * fy, weight, rgb
+                        )
                         depth_grads[b, top + 1, left + 1] -= g_z
                         g_weight += g_w
                         g_z_source += g_z
