@@ -307,3 +307,16 @@ def test_jax_forward_mode_needs_fused_false():
         jax.jvp(lambda o: along(o, True), (values["offset_next"],), (tangent,))
     _, pure = jax.jvp(lambda o: along(o, False), (values["offset_next"],), (tangent,))
     assert np.isfinite(np.asarray(pure)).all()
+
+
+def test_fitting_rotation_with_forward_mode_jacobians_takes_the_tensor_ops():
+    """fitting's Levenberg-Marquardt with jac="fwd" (JAX jvp) runs the arc scatter: it must not meet
+    the custom_vjp, so the rotation model passes fused=False there."""
+    import fitting
+    from fitting import scenes
+
+    scene, _, _ = scenes.propeller(16, 0.5)
+    result = fitting.recover(
+        scene.color, scene.target, depth=scene.depth, model="rotation", background=scene.background, backend="jax", solver="lm", jac="fwd", iterations=1
+    )
+    assert np.isfinite(result.params["angle"])
