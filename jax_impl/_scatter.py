@@ -296,8 +296,9 @@ def bezier_scatter(
         soft_z_extent: depth units, a number > 0 or a 0-d array (differentiable).
         fused: sum the splats and their backward in one parallel CPU loop each
             (`diffblur._fused_scatter`, numba, a host callback, also under jax.jit and jax.vmap),
-            with the same result and gradients (tested) and O(pixels) memory, several times faster
-            on the CPU; the normalisation and the fill stay jax.numpy ops. None (default): fused
+            with the same result and gradients (tested) and O(pixels) memory; at 1280x720 on 2
+            cores (jitted) 3x faster forward and forward+backward (scripts/measure_fused_scatter.py).
+            The normalisation and the fill stay jax.numpy ops. None (default): fused
             where it applies (JAX's default backend is the CPU, float32/float64), jax.numpy ops
             elsewhere. True: fused or a ValueError saying why not. False: always the jax.numpy ops.
             The fused path has reverse-mode gradients only (a custom_vjp): forward mode (jax.jvp,
