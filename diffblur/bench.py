@@ -135,6 +135,7 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("bezier_scatter", "degree 1, 16 points", _scatter(degree=1, samples=16, shutter="box"), _SC, _SC),
     Setting("bezier_scatter", "degree 2, 8 points", _scatter(degree=2, samples=8, shutter="box"), _SC, _SC, quick=True),
     Setting("bezier_scatter", "degree 2, 16 points", _scatter(degree=2, samples=16, shutter="box"), _SC, _SC),
+    Setting("bezier_scatter", "degree 2, 16 points, tensor ops", _scatter(degree=2, samples=16, shutter="box", fused=False), _SC, _SC),
     Setting("bezier_scatter", "degree 2, 32 points", _scatter(degree=2, samples=32, shutter="box"), _SC, _SC),
     Setting("bezier_scatter", "degree 3, 16 points", _scatter(degree=3, samples=16, shutter="box"), _SC3, _SC3),
     Setting("bezier_scatter", "degree 2, 16 points, paper normalisation", _scatter(degree=2, samples=16, shutter="box", normalization="paper"), _SC, _SC),
