@@ -282,7 +282,8 @@ def bezier_scatter(
         fused: sum the splats and their backward in one parallel CPU loop each
             (`diffblur._fused_scatter`, numba), with the same result and gradients (tested) and
             O(pixels) memory; at 1280x720 on 2 cores 8x faster forward and 9x forward+backward
-            (scripts/measure_fused_scatter.py). The normalisation and the fill stay tensor ops. None (default): fused where it applies (CPU, float32/float64, not while
+            (scripts/measure_fused_scatter.py). The normalisation and the fill stay tensor ops.
+            None (default): fused where it applies (CPU, float32/float64, not while
             torch.compile traces), tensor ops elsewhere. True: fused or a ValueError saying why not.
             False: always the tensor ops. The fused backward is not differentiable again (no double
             backward).
