@@ -31,7 +31,6 @@ import json
 import math
 import os
 import platform
-import statistics
 import sys
 import time
 from dataclasses import asdict, dataclass, field
@@ -40,6 +39,7 @@ from typing import Any, Callable
 import numpy as np
 
 from diffblur import checks, metrics
+from diffblur.timing import median_ms
 from diffblur.scenes import PRESETS, Camera, ImageTexture, Layer, Scene, Static, accumulate, photo, render_buffers, trace
 
 __all__ = ["SETTINGS", "TARGET_SETTINGS", "Setting", "run_benchmarks", "uniform_scene"]
@@ -121,6 +121,7 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("reconstruct", "S=15, bilinear", _reconstruct(samples=15), _RV, _RV, quick=True),
     Setting("reconstruct", "S=15, bilinear, tensor ops", _reconstruct(samples=15, fused=False), _RV, _RV, quick=True),
     Setting("reconstruct", "S=15, bilinear, adaptive", _reconstruct(samples=15, adaptive=True), _RV, _RV),
+    Setting("reconstruct", "S=5, bilinear, pyramid", _reconstruct(samples=5, pyramid=True), _RV, _RV),
     Setting("reconstruct", "S=31, bilinear", _reconstruct(samples=31), _RV, _RV),
     Setting("reconstruct", "S=15, nearest (paper)", _reconstruct(samples=15, sampling="nearest"), _RV, _RV),
     Setting("reconstruct", "S=15, bilinear, no jitter", _reconstruct(samples=15, jitter="none"), _RV, _RV),
@@ -130,6 +131,7 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("gather_blur", "S=15, bilinear", _gather(samples=15), _CV, _CV),
     Setting("gather_blur", "S=15, bilinear, tensor ops", _gather(samples=15, fused=False), _CV, _CV),
     Setting("gather_blur", "S=15, bilinear, adaptive", _gather(samples=15, adaptive=True), _CV, _CV),
+    Setting("gather_blur", "S=5, bilinear, pyramid", _gather(samples=5, pyramid=True), _CV, _CV),
     Setting("gather_blur", "S=31, bilinear", _gather(samples=31), _CV, _CV),
     Setting("gather_blur", "S=15, nearest", _gather(samples=15, sampling="nearest"), _CV, _CV),
     Setting("bezier_scatter", "degree 1, 16 points", _scatter(degree=1, samples=16, shutter="box"), _SC, _SC),
@@ -203,17 +205,6 @@ class Row:
 
 # ---------------------------------------------------------------------------------------------
 # measurement helpers
-
-
-def _median_ms(fn: Callable[[], Any], repeats: int, warmup: int = 1) -> float:
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return 1e3 * statistics.median(times)
 
 
 def _status_kb(key: str) -> int | None:
@@ -296,8 +287,8 @@ class _TorchRunner:
         output = forward().numpy()
         return dict(
             output=output,
-            forward_ms=_median_ms(forward, repeats),
-            backward_ms=_median_ms(backward, repeats),
+            forward_ms=median_ms(forward, repeats),
+            backward_ms=median_ms(backward, repeats),
             peak_mb=_peak_rss_mb(backward),
         )
 
@@ -345,8 +336,8 @@ class _JaxRunner:
         output = np.asarray(jax.block_until_ready(fwd(arrays)))
         return dict(
             output=output,
-            forward_ms=_median_ms(lambda: jax.block_until_ready(fwd(arrays)), repeats),
-            backward_ms=_median_ms(lambda: jax.block_until_ready(bwd(grads, rest)), repeats),
+            forward_ms=median_ms(lambda: jax.block_until_ready(fwd(arrays)), repeats),
+            backward_ms=median_ms(lambda: jax.block_until_ready(bwd(grads, rest)), repeats),
             peak_mb=_peak_rss_mb(lambda: jax.block_until_ready(bwd(grads, rest))),
             compile_s=fwd_compile,
             compile_backward_s=bwd_compile,
@@ -399,7 +390,7 @@ def _accumulation_rows(buffers, instants: tuple[int, ...], size: str) -> list[Ro
     rows = []
     for n in instants:
         image, count = accumulate(buffers.scene, shutter=buffers.shutter, instants=n)
-        ms = _median_ms(lambda: accumulate(buffers.scene, shutter=buffers.shutter, instants=n), repeats=1, warmup=0)
+        ms = median_ms(lambda: accumulate(buffers.scene, shutter=buffers.shutter, instants=n), repeats=1, warmup=0)
         rows.append(
             Row(
                 buffers.name,

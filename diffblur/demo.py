@@ -7,13 +7,13 @@ The backends are imported here, inside the functions, so `diffblur` itself stays
 from __future__ import annotations
 
 import os
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from diffblur import metrics
 from diffblur.scenes import make_scene
+from diffblur.timing import median_ms
 
 
 @dataclass(frozen=True)
@@ -27,16 +27,6 @@ class DemoResult:
     psnr: float
     ssim: float
     milliseconds: float
-
-
-def _median_ms(fn, repeats: int = 3) -> float:
-    fn()  # warm-up (JAX traces on the first call)
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return 1e3 * float(np.median(times))
 
 
 #: The demo's methods: (label, MotionBlur method, its options, the scene buffers its forward reads).
@@ -134,7 +124,7 @@ def run_demo(out_dir: str | os.PathLike, *, scene_name: str = "translate", size:
         for name, torch_run, jax_run in methods:
             for backend, run in (("torch", torch_run), ("jax", jax_run)):
                 output = run(scene)
-                ms = _median_ms(lambda: run(scene))
+                ms = median_ms(lambda: run(scene), 3)
                 results.append(
                     DemoResult(
                         name,

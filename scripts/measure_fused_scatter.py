@@ -15,23 +15,14 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import time
 
 import numpy as np
 
+from diffblur.timing import median_ms
+
 HALF_SPREAD = 8.0
 SAMPLES = 16
-
-
-def median_ms(fn, repeats: int) -> float:
-    fn()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return 1e3 * statistics.median(times)
 
 
 def scene() -> list[np.ndarray]:

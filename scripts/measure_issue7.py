@@ -15,13 +15,13 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import statistics
 import time
 
 import numpy as np
 
 from diffblur.metrics import psnr, ssim, to_display
 from diffblur.scenes import make_scene
+from diffblur.timing import median_ms
 
 PRESETS = ("translate", "crossing", "propeller", "gears")
 
@@ -44,16 +44,6 @@ METHODS = [
     ("reconstruct S=5", "reconstruct", dict(samples=5), "vd"),
     ("reconstruct S=5 pyramid", "reconstruct", dict(samples=5, pyramid=True), "vd"),
 ]
-
-
-def _median_time(fn, repeats: int) -> float:
-    fn()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def _torch_runner(name, options, inputs, scene):
@@ -107,7 +97,7 @@ def accuracy_table(presets=PRESETS, *, size: int = 128, repeats: int = 3, method
             for backend in backends:
                 runner = (_torch_runner if backend == "torch" else _jax_runner)(name, options, inputs, scene)
                 outputs[backend] = runner()
-                row[f"{backend}_s"] = _median_time(runner, repeats)
+                row[f"{backend}_s"] = median_ms(runner, repeats) / 1e3
             first = outputs[backends[0]]
             row["psnr"] = float(psnr(first, target))
             row["ssim"] = float(ssim(first, target))
@@ -176,7 +166,7 @@ def adaptive_speed(size: int = 512, *, samples: int = 15, max_radius: float = 16
                 full = lambda jitted=jitted, arrays=arrays: np.asarray(jitted(*arrays).block_until_ready())  # noqa: E731
                 adaptive = lambda fn=fn, arrays=arrays: np.asarray(fn(*arrays, **options, adaptive=True).block_until_ready())  # noqa: E731
             full_out, adaptive_out = full(), adaptive()
-            full_s, adaptive_s = _median_time(full, repeats), _median_time(adaptive, repeats)
+            full_s, adaptive_s = median_ms(full, repeats) / 1e3, median_ms(adaptive, repeats) / 1e3
             rows.append(
                 {
                     "op": op,
