@@ -36,9 +36,9 @@ except ImportError:  # pragma: no cover - exercised only without numba
 
 __all__ = [
     "available",
-    "constant_gather_masses",
     "gather_backward",
     "gather_forward",
+    "gather_mass_table",
     "gather_unfused_reason",
     "reconstruct_backward",
     "reconstruct_forward",
@@ -526,20 +526,28 @@ def gather_unfused_reason(sampling: str, pyramid: bool, dtype_name: str) -> str 
     return None
 
 
-def constant_gather_masses(window: Any, samples: int, classes: tuple[int, ...]) -> np.ndarray | None:
-    """The kernel's mass table (S + 1, S), float64, when the window's parameters are constants (row
-    n: the renormalised masses of n taps for each count n in `classes`, zeros elsewhere); None when
-    a parameter is an array to fit, whose gradient the backends' own table carries."""
+def gather_mass_table(window: Any, samples: int, classes: tuple[int, ...], xp: Any, dtype: Any) -> Any:
+    """The kernel's mass table (S + 1, S) as an `xp` array of `dtype`: row n holds the renormalised
+    masses of n taps for each count n in `classes`, zeros elsewhere. A window with constant
+    parameters gets it from NumPy in float64; one with a parameter being fitted from `xp` ops, which
+    carry its gradient."""
     from diffblur._scatter_options import has_constant_parameters
     from diffblur.taps import gather_tap_times, stratum_weights
 
-    if not has_constant_parameters(window):
-        return None
-    table = np.zeros((samples + 1, samples))
-    for count in classes:
-        masses = stratum_weights(window, np.asarray(gather_tap_times(count)), 1.0 / count, np)
-        table[count, :count] = masses / masses.sum()
-    return table
+    if has_constant_parameters(window):
+        table = np.zeros((samples + 1, samples))
+        for count in classes:
+            masses = stratum_weights(window, np.asarray(gather_tap_times(count)), 1.0 / count, np)
+            table[count, :count] = masses / masses.sum()
+        return xp.asarray(table, dtype=dtype)
+    rows = []
+    for count in range(samples + 1):
+        if count in classes:
+            masses = stratum_weights(window, xp.asarray(gather_tap_times(count), dtype=dtype), 1.0 / count, xp)
+            rows.append(xp.concatenate([masses / masses.sum(), xp.zeros(samples - count, dtype=dtype)]))
+        else:
+            rows.append(xp.zeros(samples, dtype=dtype))
+    return xp.stack(rows)
 
 
 @_jit

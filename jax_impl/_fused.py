@@ -18,7 +18,6 @@ import numpy as np
 
 from diffblur import _fused
 from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED
-from diffblur.taps import gather_tap_times, stratum_weights
 from jax_impl._primitives import _safe_length, neighbor_max, tile_max
 from jax_impl._sampling import widen_window
 
@@ -124,17 +123,5 @@ def fused_gather(color, velocity, window, samples: int, classes: tuple[int, ...]
     """gather_blur (full rate, or the adaptive `classes`) on the fused kernel; see `gather_unfused_reason`.
     The kernel sizes the adaptive classes itself, from the velocity."""
     settings = (("samples", samples), ("classes", classes), ("still", STILL_SPEED), ("tile", ADAPTIVE_TILE))
-    table = _fused.constant_gather_masses(window, samples, classes or (samples,))
-    if table is not None:
-        table = jnp.asarray(table, dtype=color.dtype)
-    else:  # a shutter parameter to fit: the table is built by jax.numpy ops, which carry its gradient
-        window = widen_window(window, wide)
-        rows = []
-        for count in range(samples + 1):  # row n: the masses of n taps, zeros where no class has n
-            if count in (classes or (samples,)):
-                masses = stratum_weights(window, jnp.asarray(gather_tap_times(count), dtype=wide), 1.0 / count, jnp)
-                rows.append(jnp.pad((masses / masses.sum()).astype(wide), (0, samples - count)))
-            else:
-                rows.append(jnp.zeros(samples, dtype=wide))
-        table = jnp.stack(rows).astype(color.dtype)
+    table = _fused.gather_mass_table(widen_window(window, wide), samples, classes or (samples,), jnp, wide).astype(color.dtype)
     return _fused_gather_core(settings, color, velocity, table)

@@ -13,7 +13,6 @@ from torch.autograd.function import once_differentiable
 
 from diffblur import _fused
 from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED
-from diffblur.taps import gather_tap_times, stratum_weights
 from torch_impl._primitives import _safe_length, neighbor_max, tile_max
 
 
@@ -94,16 +93,5 @@ def fused_gather(color: Tensor, velocity: Tensor, window, samples: int, classes:
     """gather_blur (full rate, or the adaptive `classes`) on the fused kernel; see `gather_unfused_reason`.
     The kernel sizes the adaptive classes itself, from the velocity."""
     settings = dict(samples=samples, classes=classes, still=STILL_SPEED, tile=ADAPTIVE_TILE)
-    table = _fused.constant_gather_masses(window, samples, classes or (samples,))
-    if table is not None:
-        table = torch.from_numpy(table).to(color.dtype)
-    else:  # a shutter parameter to fit: the table is built by tensor ops, which carry its gradient
-        rows = []
-        for count in range(samples + 1):  # row n: the masses of n taps, zeros where no class has n
-            if count in (classes or (samples,)):
-                masses = stratum_weights(window, torch.as_tensor(gather_tap_times(count), dtype=wide), 1.0 / count, torch)
-                rows.append(torch.nn.functional.pad(masses / masses.sum(), (0, samples - count)))
-            else:
-                rows.append(torch.zeros(samples, dtype=wide))
-        table = torch.stack(rows).to(color.dtype)
+    table = _fused.gather_mass_table(window, samples, classes or (samples,), torch, wide).to(color.dtype)
     return _FusedGather.apply(color, velocity, table, settings)
