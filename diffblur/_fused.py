@@ -3,13 +3,14 @@
 A tensor framework runs `reconstruct` as ~200 full-resolution elementwise ops per tap; on a 2-core
 CPU that cannot reach the 100 ms target at 1280x720 (BENCHMARKS.md), and JAX's backward is
 dominated by the scatter-add that transposes the bilinear reads. These kernels do the whole filter
-in one parallel loop over pixels, and its hand-written backward in a second one. They take and
-return NumPy arrays, so both backends share them: `torch_impl._fused` wraps them in an
+in one parallel loop over pixels, and its hand-written backward in a second one. `reconstruct`'s two
+run a block of one row at a time as SIMD vectors (see "The forward runs a block" below). They take
+and return NumPy arrays, so both backends share them: `torch_impl._fused` wraps them in an
 `autograd.Function`, `jax_impl._fused` in a `custom_vjp` over `pure_callback`.
 
 The pure tensor ops stay the reference: tests compare outputs and gradients of both paths. The
 kernels repeat the pure ops' arithmetic (the same clamps, floors and `where` branches, so the same
-one-sided derivatives at kinks) in float64 scalars, reading and writing the arrays' dtype.
+one-sided derivatives at kinks) in float64, reading and writing the arrays' dtype.
 
 Scope, checked by `reconstruct_unfused_reason`: bilinear sampling, the box shutter, float32 or
 float64, no pyramid. The tap count is per tile (`counts`), which is how adaptive sampling and the
@@ -133,10 +134,10 @@ def _cone(distance, inverse):
 
 @_inline
 def _cone_grad(distance, speed, inverse, grad):
-    """d cone / d distance and d cone / d speed, times grad (the pure op's one-sided rules)."""
+    """d cone / d distance and d cone / d speed, times grad (the pure op's one-sided rules). One
+    return of selects: a tuple merged from two returns is an alias to numba's parallel loops."""
     u = 1.0 - distance * inverse
-    if u < 0.0 or u > 1.0:
-        return 0.0, 0.0
+    grad = grad if (u >= 0.0) & (u <= 1.0) else 0.0
     d_speed = grad * distance * inverse * inverse if speed >= EPSILON else 0.0
     return -grad * inverse, d_speed
 
@@ -150,10 +151,9 @@ def _cylinder(distance, inverse):
 
 @_inline
 def _cylinder_grad(distance, speed, inverse, grad):
+    """As `_cone_grad`, for the cylinder."""
     q = (distance * inverse - CYLINDER_INNER) * _INVERSE_CYLINDER_SPAN
-    if q < 0.0 or q > 1.0:
-        return 0.0, 0.0
-    d_q = grad * (-6.0 * q * (1.0 - q)) * _INVERSE_CYLINDER_SPAN
+    d_q = grad * (-6.0 * q * (1.0 - q)) * _INVERSE_CYLINDER_SPAN if (q >= 0.0) & (q <= 1.0) else 0.0
     d_speed = -d_q * distance * inverse * inverse if speed >= EPSILON else 0.0
     return d_q * inverse, d_speed
 
@@ -203,21 +203,6 @@ def _scatter(grads, b, channel, row0, row1, column0, column1, fx, fy, grad):
 
 
 @_jit
-def _interleave(color, velocity, depth, buffers):
-    """(B, C, H, W), (B, 2, H, W), (B, 1, H, W) -> buffers (B, H, W, C + 3): a tap's reads sit together."""
-    batch, channels, height, width = color.shape
-    for row in numba.prange(batch * height):
-        b = row // height
-        y = row % height
-        for x in range(width):
-            for c in range(channels):
-                buffers[b, y, x, c] = color[b, c, y, x]
-            buffers[b, y, x, channels] = velocity[b, 0, y, x]
-            buffers[b, y, x, channels + 1] = velocity[b, 1, y, x]
-            buffers[b, y, x, channels + 2] = depth[b, 0, y, x]
-
-
-@_jit
 def _deinterleave_sum(grads, out):
     """Sum the (chunks, B, H, W, K) per-chunk gradient buffers into out (B, K, H, W)."""
     chunks, batch, height, width, channels = grads.shape
@@ -232,222 +217,451 @@ def _deinterleave_sum(grads, out):
                 out[b, c, y, x] = total
 
 
-@_inline
-def _pixel(buffers, neighbors, jitter, b, jb, y, x, tile, min_radius):
-    """Pixel X's NeighborMax v_N and |v_N|, V[X], |V[X]|, the classifiers' speed (floored) and its
-    floored inverse, Z[X] and the jitter j, as float64."""
-    channels = buffers.shape[3] - 3
-    nx = np.float64(neighbors[b, 0, y // tile, x // tile])
-    ny = np.float64(neighbors[b, 1, y // tile, x // tile])
-    vx = np.float64(buffers[b, y, x, channels])
-    vy = np.float64(buffers[b, y, x, channels + 1])
-    length_x = _length(vx, vy)
-    speed_x = length_x if length_x >= min_radius else min_radius
-    z_x = np.float64(buffers[b, y, x, channels + 2])
-    return nx, ny, _length(nx, ny), vx, vy, length_x, speed_x, _floored_inverse(speed_x), z_x, np.float64(jitter[jb, 0, y, x])
+# The forward runs a block of pixels of one row as vectors: for each tap index k, one loop over the
+# block's pixels with no branches, whose bilinear reads LLVM turns into SIMD gathers (2x faster than a
+# pixel-at-a-time loop here). Three things make that loop vectorize: the per-pixel state lives in
+# scratch arrays that are separate arguments of the parallel loop (numba marks non-aliasing arguments
+# `noalias`; a view or a bool flag copied inside the loop counts as an alias and turns that off), the
+# image is read as (left, right) pairs (`_pairs`: one 64-bit read per bilinear row for float32), and
+# a pixel whose tap is not taken (the middle tap, or past its tile's count) reads its own pixel
+# (t = 0) with weight 0 instead of branching.
+_BLOCK = 128
 
 
-@_inline
-def _tap(k, j, step, own_odd, nx, ny, speed_n, vx, vy, length_x):
-    """Tap k's time t (seed 000 Listing 1), whether it follows V[X], its direction and speed."""
-    t = -1.0 + (k + j + 1.0) * step
-    own = own_odd and k % 2 == 1
-    if own:
-        return t, own, vx, vy, length_x
-    return t, own, nx, ny, speed_n
+if numba is not None:
+    from llvmlite import ir as _ir
+    from numba.core import types as _types
+    from numba.extending import intrinsic as _intrinsic
+    from numba.extending import overload as _overload
+
+    @_intrinsic
+    def _split_float32_pair(typingctx, bits):
+        """A uint64 that holds two float32 (little-endian: the first in the low word) -> both."""
+        if bits != _types.uint64:
+            return None
+
+        def codegen(context, builder, signature, args):
+            low = builder.trunc(args[0], _ir.IntType(32))
+            high = builder.trunc(builder.lshr(args[0], _ir.Constant(_ir.IntType(64), 32)), _ir.IntType(32))
+            halves = (builder.bitcast(low, _ir.FloatType()), builder.bitcast(high, _ir.FloatType()))
+            return context.make_tuple(builder, signature.return_type, halves)
+
+        return _types.UniTuple(_types.float32, 2)(bits), codegen
+
+
+def _pair(pairs, index):  # pragma: no cover - numba compiles the overload below
+    raise NotImplementedError
+
+
+if numba is not None:
+
+    @_overload(_pair, inline="always", fastmath=True)
+    def _pair_overload(pairs, index):
+        """Pair `index` of `_pairs`' flat array as float64 (left, right): float32 pairs are one
+        uint64 read, float64 pairs two reads."""
+        if pairs.dtype == _types.uint64:
+
+            def read_uint64(pairs, index):
+                left, right = _split_float32_pair(pairs[index])
+                return np.float64(left), np.float64(right)
+
+            return read_uint64
+
+        def read_float64(pairs, index):
+            return pairs[2 * index], pairs[2 * index + 1]
+
+        return read_float64
 
 
 @_jit
-def _reconstruct_forward(buffers, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, chunks, out, weight):
-    batch, height, width, stored = buffers.shape
-    channels = stored - 3
+def _fill_pairs(color, velocity, depth, pairs):
+    """pairs (B, H, W, C + 3, 2): each pixel's C, V, Z beside those of its right neighbour (the last
+    column beside itself), so a bilinear row is one read."""
+    batch, channels, height, width = color.shape
+    for row in numba.prange(batch * height):
+        b = row // height
+        y = row % height
+        for x in range(width):
+            right = min(x + 1, width - 1)
+            for c in range(channels):
+                pairs[b, y, x, c, 0] = color[b, c, y, x]
+                pairs[b, y, x, c, 1] = color[b, c, y, right]
+            for c in range(2):
+                pairs[b, y, x, channels + c, 0] = velocity[b, c, y, x]
+                pairs[b, y, x, channels + c, 1] = velocity[b, c, y, right]
+            pairs[b, y, x, channels + 2, 0] = depth[b, 0, y, x]
+            pairs[b, y, x, channels + 2, 1] = depth[b, 0, y, right]
+
+
+def _pairs(color: np.ndarray, velocity: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """`_fill_pairs`' buffer, flat: uint64 (one per pair) for float32, float64 (two per pair) else."""
+    batch, channels, height, width = color.shape
+    pairs = np.empty((batch, height, width, channels + 3, 2), dtype=color.dtype)
+    _fill_pairs(color, velocity, depth, pairs)
+    return pairs.reshape(-1).view(np.uint64) if color.dtype == np.float32 else pairs.reshape(-1)
+
+
+@_inline
+def _pair_read(pairs, index, below, fx, fy):
+    """Bilinear read of pair `index` (top row) and `index + below` (bottom row), as `_read`."""
+    top_left, top_right = _pair(pairs, index)
+    bottom_left, bottom_right = _pair(pairs, index + below)
+    top = top_left + fx * (top_right - top_left)
+    bottom = bottom_left + fx * (bottom_right - bottom_left)
+    return top + fy * (bottom - top)
+
+
+@_jit
+def _reconstruct_forward(
+    pairs, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, chunks, out, weight,
+    count_s, middle_s, step_s, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s, weight_s, total_s, index_s, below_s, fx_s, fy_s, alpha_s,
+):  # fmt: skip
+    """The *_s scratch arrays hold one block per chunk: (chunks, _BLOCK), total_s (chunks, C, _BLOCK).
+    own_odd is an int (0 or 1): see the note above on aliases."""
+    batch, channels, height, width = color.shape
+    stored = channels + 3
     jitter_batch = jitter.shape[0]
     inverse_extent = 1.0 / extent
     rows = batch * height
+    last_x = width - 1.0
+    last_y = height - 1.0
     for chunk in numba.prange(chunks):
-        total = np.empty(channels)
         for i in range(chunk * rows // chunks, (chunk + 1) * rows // chunks):
             row = order[i]
             b = row // height
             y = row % height
             jb = b if jitter_batch > 1 else 0
-            for x in range(width):
-                count = counts[b, y // tile, x // tile]
-                if count == 0:
+            image_start = b * height * width * stored
+            for start in range(0, width, _BLOCK):
+                size = min(_BLOCK, width - start)
+                taps = 0
+                for p in range(size):  # each pixel's state: NeighborMax, V[X], |V[X]|, Z[X], j
+                    x = start + p
+                    count = counts[b, y // tile, x // tile]
+                    taps = max(taps, count)
+                    count_s[chunk, p] = count
+                    middle_s[chunk, p] = (count - 1) // 2
+                    step_s[chunk, p] = 2.0 / (count + 1.0)
+                    jitter_s[chunk, p] = jitter[jb, 0, y, x]
+                    nx = np.float64(neighbors[b, 0, y // tile, x // tile])
+                    ny = np.float64(neighbors[b, 1, y // tile, x // tile])
+                    nx_s[chunk, p] = nx
+                    ny_s[chunk, p] = ny
+                    speed_n_s[chunk, p] = _length(nx, ny)
+                    vx = np.float64(velocity[b, 0, y, x])
+                    vy = np.float64(velocity[b, 1, y, x])
+                    vx_s[chunk, p] = vx
+                    vy_s[chunk, p] = vy
+                    length_x = _length(vx, vy)
+                    length_x_s[chunk, p] = length_x
+                    speed_x = length_x if length_x >= min_radius else min_radius
+                    inverse_x_s[chunk, p] = _floored_inverse(speed_x)
+                    z_x_s[chunk, p] = depth[b, 0, y, x]
+                    w = 1.0 / speed_x
+                    weight_s[chunk, p] = w
                     for c in range(channels):
-                        out[b, c, y, x] = buffers[b, y, x, c]
-                    weight[b, y, x] = 0.0
-                    continue
-                nx, ny, speed_n, vx, vy, length_x, speed_x, inverse_x, z_x, j = _pixel(buffers, neighbors, jitter, b, jb, y, x, tile, min_radius)
-                w = 1.0 / speed_x
-                for c in range(channels):
-                    total[c] = w * buffers[b, y, x, c]
-                middle = (count - 1) // 2
-                step = 2.0 / (count + 1.0)
-                for k in range(count):
-                    if k == middle:
-                        continue
-                    t, own, dx, dy, speed = _tap(k, j, step, own_odd, nx, ny, speed_n, vx, vy, length_x)
-                    column0, column1, row0, row1, fx, fy, _, _ = _bilinear_setup(x + dx * t, y + dy * t, width, height)
-                    v_yx = _read(buffers, b, channels, row0, row1, column0, column1, fx, fy)
-                    v_yy = _read(buffers, b, channels + 1, row0, row1, column0, column1, fx, fy)
-                    z_y = _read(buffers, b, channels + 2, row0, row1, column0, column1, fx, fy)
-                    length_y = _length(v_yx, v_yy)
-                    inverse_y = _floored_inverse(length_y if length_y >= min_radius else min_radius)
-                    distance = abs(t) * speed
-                    alpha = (
-                        _soft_depth_compare(z_x, z_y, extent, inverse_extent) * _cone(distance, inverse_y)
-                        + _soft_depth_compare(z_y, z_x, extent, inverse_extent) * _cone(distance, inverse_x)
-                        + _cylinder(distance, inverse_y) * _cylinder(distance, inverse_x) * 2.0
-                    )
-                    w += alpha
+                        total_s[chunk, c, p] = w * color[b, c, y, x]
+                for k in range(taps):
+                    own = own_odd * (k % 2)
+                    for p in range(size):  # vectorized: no branches, gathers
+                        count = count_s[chunk, p]
+                        taken = (k < count) & (k != middle_s[chunk, p])  # `and` would copy a bool: an alias
+                        t = -1.0 + (k + jitter_s[chunk, p] + 1.0) * step_s[chunk, p]
+                        t = t if taken else 0.0
+                        dx = vx_s[chunk, p] if own != 0 else nx_s[chunk, p]
+                        dy = vy_s[chunk, p] if own != 0 else ny_s[chunk, p]
+                        speed = length_x_s[chunk, p] if own != 0 else speed_n_s[chunk, p]
+                        # `_bilinear_setup`'s clamp; a clamped position is >= 0, so int() floors it.
+                        cx = min(max((start + p) + dx * t, 0.0), last_x)
+                        cy = min(max(y + dy * t, 0.0), last_y)
+                        column = np.int64(cx)
+                        row0 = np.int64(cy)
+                        fx = cx - column
+                        fy = cy - row0
+                        index = image_start + (row0 * width + column) * stored
+                        below = width * stored if row0 < height - 1 else 0
+                        index_s[chunk, p] = index
+                        below_s[chunk, p] = below
+                        fx_s[chunk, p] = fx
+                        fy_s[chunk, p] = fy
+                        v_yx = _pair_read(pairs, index + channels, below, fx, fy)
+                        v_yy = _pair_read(pairs, index + channels + 1, below, fx, fy)
+                        z_y = _pair_read(pairs, index + channels + 2, below, fx, fy)
+                        length_y = math.sqrt(v_yx * v_yx + v_yy * v_yy)
+                        inverse_y = _floored_inverse(length_y if length_y >= min_radius else min_radius)
+                        inverse_x = inverse_x_s[chunk, p]
+                        z_x = z_x_s[chunk, p]
+                        distance = abs(t) * speed
+                        alpha = (
+                            _soft_depth_compare(z_x, z_y, extent, inverse_extent) * _cone(distance, inverse_y)
+                            + _soft_depth_compare(z_y, z_x, extent, inverse_extent) * _cone(distance, inverse_x)
+                            + _cylinder(distance, inverse_y) * _cylinder(distance, inverse_x) * 2.0
+                        )
+                        alpha = alpha if taken else 0.0
+                        alpha_s[chunk, p] = alpha
+                        weight_s[chunk, p] += alpha
                     for c in range(channels):
-                        total[c] += alpha * _read(buffers, b, c, row0, row1, column0, column1, fx, fy)
-                for c in range(channels):
-                    out[b, c, y, x] = total[c] / w
-                weight[b, y, x] = w
+                        for p in range(size):  # vectorized
+                            read = _pair_read(pairs, index_s[chunk, p] + c, below_s[chunk, p], fx_s[chunk, p], fy_s[chunk, p])
+                            total_s[chunk, c, p] += alpha_s[chunk, p] * read
+                for p in range(size):
+                    x = start + p
+                    if count_s[chunk, p] == 0:
+                        for c in range(channels):
+                            out[b, c, y, x] = color[b, c, y, x]
+                        weight[b, y, x] = 0.0
+                    else:
+                        w = weight_s[chunk, p]
+                        for c in range(channels):
+                            out[b, c, y, x] = total_s[chunk, c, p] / w
+                        weight[b, y, x] = w
+
+
+@_inline
+def _pair_read_slopes(pairs, index, below, fx, fy):
+    """d read / d fx, d read / d fy and the read of `_pair_read`, as `_read_slopes`."""
+    top_left, top_right = _pair(pairs, index)
+    bottom_left, bottom_right = _pair(pairs, index + below)
+    top = top_left + fx * (top_right - top_left)
+    bottom = bottom_left + fx * (bottom_right - bottom_left)
+    return (1.0 - fy) * (top_right - top_left) + fy * (bottom_right - bottom_left), bottom - top, top + fy * (bottom - top)
+
+
+@_inline
+def _scatter_chunk(grads, chunk, b, channel, row0, row1, column0, column1, fx, fy, grad):
+    """`_scatter` into chunk `chunk` of grads, indexed rather than sliced (a slice is an alias)."""
+    grads[chunk, b, row0, column0, channel] += grad * (1.0 - fx) * (1.0 - fy)
+    grads[chunk, b, row0, column1, channel] += grad * fx * (1.0 - fy)
+    grads[chunk, b, row1, column0, channel] += grad * (1.0 - fx) * fy
+    grads[chunk, b, row1, column1, channel] += grad * fx * fy
 
 
 @_jit
-def _reconstruct_backward(buffers, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, out, weight, grad_out, grads, grad_neighbors):
-    """grads: (chunks, B, H, W, C + 3) zeros, one buffer per chunk of rows (C, V, Z gradients
-    interleaved as the buffers); grad_neighbors: (chunks, B, 2, TH, TW) zeros."""
-    batch, height, width, stored = buffers.shape
-    channels = stored - 3
+def _reconstruct_backward(
+    pairs, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, out, weight, grad_out, grads, grad_neighbors,
+    count_s, middle_s, step_s, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, g_total_s, out_s,
+    column_s, row_s, t_s, fx_s, fy_s, inside_x_s, inside_y_s, g_alpha_s, slope_x_s, slope_y_s, alpha_s, g_v_yx_s, g_v_yy_s, g_z_y_s,
+    g_speed_x_s, g_z_x_s, g_vx_s, g_vy_s, g_length_x_s, g_nx_s, g_ny_s, g_speed_n_s,
+):  # fmt: skip
+    """The forward's layout (pairs, blocks of one row as vectors, scratch arguments) for the hand-written
+    backward. Per tap index k: one vector loop places the taps, one per channel reads the colours, one
+    runs the classifiers' derivatives; then a scalar loop scatters the gradients of the 4 pixels each
+    tap read (lanes may collide, so it cannot be a vector scatter).
+    grads: (chunks, B, H, W, C + 3) zeros, one buffer per chunk of rows (C, V, Z gradients
+    interleaved); grad_neighbors: (chunks, B, 2, TH, TW) zeros; *_s scratch: (chunks, _BLOCK), g_total_s
+    and out_s (chunks, C, _BLOCK)."""
+    batch, channels, height, width = color.shape
+    stored = channels + 3
     jitter_batch = jitter.shape[0]
     inverse_extent = 1.0 / extent
     chunks = grads.shape[0]
     rows = batch * height
+    last_x = width - 1.0
+    last_y = height - 1.0
     for chunk in numba.prange(chunks):
-        g_total = np.empty(channels)
-        mine = grads[chunk]
         for i in range(chunk * rows // chunks, (chunk + 1) * rows // chunks):
             row = order[i]
             b = row // height
             y = row % height
             jb = b if jitter_batch > 1 else 0
-            for x in range(width):
-                count = counts[b, y // tile, x // tile]
-                if count == 0:
+            image_start = b * height * width * stored
+            for start in range(0, width, _BLOCK):
+                size = min(_BLOCK, width - start)
+                taps = 0
+                for p in range(size):
+                    x = start + p
+                    count = counts[b, y // tile, x // tile]
+                    taps = max(taps, count)
+                    count_s[chunk, p] = count
+                    middle_s[chunk, p] = (count - 1) // 2
+                    step_s[chunk, p] = 2.0 / (count + 1.0)
+                    jitter_s[chunk, p] = jitter[jb, 0, y, x]
+                    nx = np.float64(neighbors[b, 0, y // tile, x // tile])
+                    ny = np.float64(neighbors[b, 1, y // tile, x // tile])
+                    nx_s[chunk, p] = nx
+                    ny_s[chunk, p] = ny
+                    speed_n_s[chunk, p] = _length(nx, ny)
+                    vx = np.float64(velocity[b, 0, y, x])
+                    vy = np.float64(velocity[b, 1, y, x])
+                    vx_s[chunk, p] = vx
+                    vy_s[chunk, p] = vy
+                    length_x = _length(vx, vy)
+                    length_x_s[chunk, p] = length_x
+                    speed_x = length_x if length_x >= min_radius else min_radius
+                    speed_x_s[chunk, p] = speed_x
+                    inverse_x_s[chunk, p] = _floored_inverse(speed_x)
+                    z_x_s[chunk, p] = depth[b, 0, y, x]
+                    # out = total / w: d total = g / w, d w = -sum(g out) / w; per tap alpha and
+                    # alpha C[Y] both enter, so d alpha = sum(g (C[Y] - out)) / w. A pixel with count 0
+                    # (the early-out: out = C[X]) still fills every scratch entry, with no gradient,
+                    # so the vector loops read finite values in its lane.
+                    inverse_w = 1.0 / np.float64(weight[b, y, x]) if count > 0 else 0.0
+                    g_center = 0.0
                     for c in range(channels):
-                        mine[b, y, x, c] += grad_out[b, c, y, x]
-                    continue
-                tile_y = y // tile
-                tile_x = x // tile
-                nx, ny, speed_n, vx, vy, length_x, speed_x, inverse_x, z_x, j = _pixel(buffers, neighbors, jitter, b, jb, y, x, tile, min_radius)
-                w = np.float64(weight[b, y, x])
-                # out = total / w: d total = g / w, d w = -sum(g out) / w; per tap alpha and
-                # alpha C[Y] both enter, so d alpha = sum(g (C[Y] - out)) / w.
-                g_center = 0.0
-                for c in range(channels):
-                    g_total[c] = grad_out[b, c, y, x] / w
-                    g_center += g_total[c] * (buffers[b, y, x, c] - out[b, c, y, x])
-                    mine[b, y, x, c] += g_total[c] / speed_x
-                g_speed_x = -g_center / (speed_x * speed_x)
-                g_length_x = 0.0
-                g_vx = 0.0
-                g_vy = 0.0
-                g_z_x = 0.0
-                g_nx = 0.0
-                g_ny = 0.0
-                g_speed_n = 0.0
-                middle = (count - 1) // 2
-                step = 2.0 / (count + 1.0)
-                for k in range(count):
-                    if k == middle:
+                        g_total = grad_out[b, c, y, x] * inverse_w
+                        g_total_s[chunk, c, p] = g_total
+                        out_s[chunk, c, p] = out[b, c, y, x]
+                        g_center += g_total * (color[b, c, y, x] - out[b, c, y, x])
+                        grads[chunk, b, y, x, c] += g_total / speed_x if count > 0 else grad_out[b, c, y, x]
+                    g_speed_x_s[chunk, p] = -g_center / (speed_x * speed_x)
+                    g_z_x_s[chunk, p] = 0.0
+                    g_vx_s[chunk, p] = 0.0
+                    g_vy_s[chunk, p] = 0.0
+                    g_length_x_s[chunk, p] = 0.0
+                    g_nx_s[chunk, p] = 0.0
+                    g_ny_s[chunk, p] = 0.0
+                    g_speed_n_s[chunk, p] = 0.0
+                for k in range(taps):
+                    own = own_odd * (k % 2)
+                    for p in range(size):  # vectorized: the taps' positions
+                        taken = (k < count_s[chunk, p]) & (k != middle_s[chunk, p])
+                        t = -1.0 + (k + jitter_s[chunk, p] + 1.0) * step_s[chunk, p]
+                        t = t if taken else 0.0
+                        px = (start + p) + (vx_s[chunk, p] if own != 0 else nx_s[chunk, p]) * t
+                        py = y + (vy_s[chunk, p] if own != 0 else ny_s[chunk, p]) * t
+                        cx = min(max(px, 0.0), last_x)
+                        cy = min(max(py, 0.0), last_y)
+                        column = np.int64(cx)
+                        row0 = np.int64(cy)
+                        column_s[chunk, p] = column
+                        row_s[chunk, p] = row0
+                        t_s[chunk, p] = t
+                        fx_s[chunk, p] = cx - column
+                        fy_s[chunk, p] = cy - row0
+                        inside_x_s[chunk, p] = 1.0 if (px >= 0.0) & (px <= last_x) & taken else 0.0
+                        inside_y_s[chunk, p] = 1.0 if (py >= 0.0) & (py <= last_y) & taken else 0.0
+                        g_alpha_s[chunk, p] = 0.0
+                        slope_x_s[chunk, p] = 0.0
+                        slope_y_s[chunk, p] = 0.0
+                    for c in range(channels):
+                        for p in range(size):  # vectorized: the colours read
+                            row0 = row_s[chunk, p]
+                            index = image_start + (row0 * width + column_s[chunk, p]) * stored + c
+                            below = width * stored if row0 < height - 1 else 0
+                            slope_x, slope_y, c_y = _pair_read_slopes(pairs, index, below, fx_s[chunk, p], fy_s[chunk, p])
+                            g_total = g_total_s[chunk, c, p]
+                            g_alpha_s[chunk, p] += g_total * (c_y - out_s[chunk, c, p])
+                            slope_x_s[chunk, p] += g_total * slope_x  # times alpha below
+                            slope_y_s[chunk, p] += g_total * slope_y
+                    for p in range(size):  # vectorized: the classifiers and their derivatives
+                        taken = (k < count_s[chunk, p]) & (k != middle_s[chunk, p])
+                        row0 = row_s[chunk, p]
+                        index = image_start + (row0 * width + column_s[chunk, p]) * stored + channels
+                        below = width * stored if row0 < height - 1 else 0
+                        fx = fx_s[chunk, p]
+                        fy = fy_s[chunk, p]
+                        t = t_s[chunk, p]
+                        slope_vxx, slope_vxy, v_yx = _pair_read_slopes(pairs, index, below, fx, fy)
+                        slope_vyx, slope_vyy, v_yy = _pair_read_slopes(pairs, index + 1, below, fx, fy)
+                        slope_zx, slope_zy, z_y = _pair_read_slopes(pairs, index + 2, below, fx, fy)
+                        length_y = math.sqrt(v_yx * v_yx + v_yy * v_yy)
+                        speed_y = length_y if length_y >= min_radius else min_radius
+                        inverse_y = _floored_inverse(speed_y)
+                        speed_x = speed_x_s[chunk, p]
+                        inverse_x = inverse_x_s[chunk, p]
+                        z_x = z_x_s[chunk, p]
+                        distance = abs(t) * (length_x_s[chunk, p] if own != 0 else speed_n_s[chunk, p])
+                        front = _soft_depth_compare(z_x, z_y, extent, inverse_extent)
+                        behind = _soft_depth_compare(z_y, z_x, extent, inverse_extent)
+                        cone_y = _cone(distance, inverse_y)
+                        cone_x = _cone(distance, inverse_x)
+                        cylinder_y = _cylinder(distance, inverse_y)
+                        cylinder_x = _cylinder(distance, inverse_x)
+                        alpha = front * cone_y + behind * cone_x + cylinder_y * cylinder_x * 2.0
+                        alpha = alpha if taken else 0.0
+                        g_alpha = g_alpha_s[chunk, p] if taken else 0.0
+                        # The classifiers.
+                        g_front = g_alpha * cone_y
+                        g_behind = g_alpha * cone_x
+                        front_slope = g_front * inverse_extent if (z_y - z_x >= 0.0) & (z_y - z_x <= extent) else 0.0
+                        behind_slope = g_behind * inverse_extent if (z_x - z_y >= 0.0) & (z_x - z_y <= extent) else 0.0
+                        g_z_y = behind_slope - front_slope
+                        g_distance, g_speed_y = _cone_grad(distance, speed_y, inverse_y, g_alpha * front)
+                        d_distance, g_speed_x = _cone_grad(distance, speed_x, inverse_x, g_alpha * behind)
+                        g_distance += d_distance
+                        d_distance, d_speed = _cylinder_grad(distance, speed_y, inverse_y, g_alpha * 2.0 * cylinder_x)
+                        g_distance += d_distance
+                        g_speed_y += d_speed
+                        d_distance, d_speed = _cylinder_grad(distance, speed_x, inverse_x, g_alpha * 2.0 * cylinder_y)
+                        g_distance += d_distance
+                        g_speed_x += d_speed
+                        # V[Y] through speed_y = max(|V[Y]|, min_radius).
+                        moving = (length_y >= min_radius) & (length_y > 0.0)
+                        g_v_yx = g_speed_y * v_yx / length_y if moving else 0.0
+                        g_v_yy = g_speed_y * v_yy / length_y if moving else 0.0
+                        g_fx = alpha * slope_x_s[chunk, p] + g_v_yx * slope_vxx + g_v_yy * slope_vyx + g_z_y * slope_zx
+                        g_fy = alpha * slope_y_s[chunk, p] + g_v_yx * slope_vxy + g_v_yy * slope_vyy + g_z_y * slope_zy
+                        # The tap position X + direction t (no gradient where clamped) and the
+                        # distance |t| speed; own (0 or 1) picks V[X] or NeighborMax.
+                        g_dx = g_fx * t * inside_x_s[chunk, p]
+                        g_dy = g_fy * t * inside_y_s[chunk, p]
+                        g_along = g_distance * abs(t)
+                        alpha_s[chunk, p] = alpha
+                        g_v_yx_s[chunk, p] = g_v_yx
+                        g_v_yy_s[chunk, p] = g_v_yy
+                        g_z_y_s[chunk, p] = g_z_y
+                        g_speed_x_s[chunk, p] += g_speed_x
+                        g_z_x_s[chunk, p] += front_slope - behind_slope
+                        g_vx_s[chunk, p] += g_dx * own
+                        g_vy_s[chunk, p] += g_dy * own
+                        g_length_x_s[chunk, p] += g_along * own
+                        g_nx_s[chunk, p] += g_dx * (1 - own)
+                        g_ny_s[chunk, p] += g_dy * (1 - own)
+                        g_speed_n_s[chunk, p] += g_along * (1 - own)
+                    for p in range(size):  # scalar: the 4 pixels each tap read
+                        if k >= count_s[chunk, p] or k == middle_s[chunk, p]:
+                            continue
+                        row0 = row_s[chunk, p]
+                        column = column_s[chunk, p]
+                        row1 = min(row0 + 1, height - 1)
+                        column1 = min(column + 1, width - 1)
+                        fx = fx_s[chunk, p]
+                        fy = fy_s[chunk, p]
+                        alpha = alpha_s[chunk, p]
+                        for c in range(channels):
+                            _scatter_chunk(grads, chunk, b, c, row0, row1, column, column1, fx, fy, alpha * g_total_s[chunk, c, p])
+                        _scatter_chunk(grads, chunk, b, channels, row0, row1, column, column1, fx, fy, g_v_yx_s[chunk, p])
+                        _scatter_chunk(grads, chunk, b, channels + 1, row0, row1, column, column1, fx, fy, g_v_yy_s[chunk, p])
+                        _scatter_chunk(grads, chunk, b, channels + 2, row0, row1, column, column1, fx, fy, g_z_y_s[chunk, p])
+                for p in range(size):  # each pixel's own V[X], Z[X] and NeighborMax
+                    if count_s[chunk, p] == 0:
                         continue
-                    t, own, dx, dy, speed = _tap(k, j, step, own_odd, nx, ny, speed_n, vx, vy, length_x)
-                    column0, column1, row0, row1, fx, fy, inside_x, inside_y = _bilinear_setup(x + dx * t, y + dy * t, width, height)
-                    slope_vxx, slope_vxy, v_yx = _read_slopes(buffers, b, channels, row0, row1, column0, column1, fx, fy)
-                    slope_vyx, slope_vyy, v_yy = _read_slopes(buffers, b, channels + 1, row0, row1, column0, column1, fx, fy)
-                    slope_zx, slope_zy, z_y = _read_slopes(buffers, b, channels + 2, row0, row1, column0, column1, fx, fy)
-                    length_y = _length(v_yx, v_yy)
-                    speed_y = length_y if length_y >= min_radius else min_radius
-                    inverse_y = _floored_inverse(speed_y)
-                    distance = abs(t) * speed
-                    front = _soft_depth_compare(z_x, z_y, extent, inverse_extent)
-                    behind = _soft_depth_compare(z_y, z_x, extent, inverse_extent)
-                    cone_y = _cone(distance, inverse_y)
-                    cone_x = _cone(distance, inverse_x)
-                    cylinder_y = _cylinder(distance, inverse_y)
-                    cylinder_x = _cylinder(distance, inverse_x)
-                    alpha = front * cone_y + behind * cone_x + cylinder_y * cylinder_x * 2.0
-                    g_alpha = 0.0
-                    g_fx = 0.0
-                    g_fy = 0.0
-                    for c in range(channels):
-                        slope_x, slope_y, c_y = _read_slopes(buffers, b, c, row0, row1, column0, column1, fx, fy)
-                        g_alpha += g_total[c] * (c_y - out[b, c, y, x])
-                        g_c = alpha * g_total[c]
-                        _scatter(mine, b, c, row0, row1, column0, column1, fx, fy, g_c)
-                        g_fx += g_c * slope_x
-                        g_fy += g_c * slope_y
-                    # The classifiers.
-                    g_z_y = 0.0
-                    g_front = g_alpha * cone_y
-                    g_behind = g_alpha * cone_x
-                    if z_y - z_x >= 0.0 and z_y - z_x <= extent:
-                        g_z_y -= g_front * inverse_extent
-                        g_z_x += g_front * inverse_extent
-                    if z_x - z_y >= 0.0 and z_x - z_y <= extent:
-                        g_z_x -= g_behind * inverse_extent
-                        g_z_y += g_behind * inverse_extent
-                    g_distance, g_speed_y = _cone_grad(distance, speed_y, inverse_y, g_alpha * front)
-                    d_distance, d_speed = _cone_grad(distance, speed_x, inverse_x, g_alpha * behind)
-                    g_distance += d_distance
-                    g_speed_x += d_speed
-                    d_distance, d_speed = _cylinder_grad(distance, speed_y, inverse_y, g_alpha * 2.0 * cylinder_x)
-                    g_distance += d_distance
-                    g_speed_y += d_speed
-                    d_distance, d_speed = _cylinder_grad(distance, speed_x, inverse_x, g_alpha * 2.0 * cylinder_y)
-                    g_distance += d_distance
-                    g_speed_x += d_speed
-                    # V[Y] through speed_y = max(|V[Y]|, min_radius).
-                    g_v_yx = 0.0
-                    g_v_yy = 0.0
-                    if length_y >= min_radius and length_y > 0.0:
-                        g_v_yx = g_speed_y * v_yx / length_y
-                        g_v_yy = g_speed_y * v_yy / length_y
-                    _scatter(mine, b, channels, row0, row1, column0, column1, fx, fy, g_v_yx)
-                    _scatter(mine, b, channels + 1, row0, row1, column0, column1, fx, fy, g_v_yy)
-                    _scatter(mine, b, channels + 2, row0, row1, column0, column1, fx, fy, g_z_y)
-                    g_fx += g_v_yx * slope_vxx + g_v_yy * slope_vyx + g_z_y * slope_zx
-                    g_fy += g_v_yx * slope_vxy + g_v_yy * slope_vyy + g_z_y * slope_zy
-                    # The tap position X + direction t and the distance |t| speed.
-                    g_dx = g_fx * t if inside_x else 0.0
-                    g_dy = g_fy * t if inside_y else 0.0
-                    if own:
-                        g_vx += g_dx
-                        g_vy += g_dy
-                        g_length_x += g_distance * abs(t)
-                    else:
-                        g_nx += g_dx
-                        g_ny += g_dy
-                        g_speed_n += g_distance * abs(t)
-                if length_x >= min_radius:
-                    g_length_x += g_speed_x
-                if length_x > 0.0:
-                    g_vx += g_length_x * vx / length_x
-                    g_vy += g_length_x * vy / length_x
-                if speed_n > 0.0:
-                    g_nx += g_speed_n * nx / speed_n
-                    g_ny += g_speed_n * ny / speed_n
-                mine[b, y, x, channels] += g_vx
-                mine[b, y, x, channels + 1] += g_vy
-                mine[b, y, x, channels + 2] += g_z_x
-                grad_neighbors[chunk, b, 0, tile_y, tile_x] += g_nx
-                grad_neighbors[chunk, b, 1, tile_y, tile_x] += g_ny
+                    x = start + p
+                    length_x = length_x_s[chunk, p]
+                    g_length_x = g_length_x_s[chunk, p]
+                    if length_x >= min_radius:
+                        g_length_x += g_speed_x_s[chunk, p]
+                    g_vx = g_vx_s[chunk, p]
+                    g_vy = g_vy_s[chunk, p]
+                    if length_x > 0.0:
+                        g_vx += g_length_x * vx_s[chunk, p] / length_x
+                        g_vy += g_length_x * vy_s[chunk, p] / length_x
+                    g_nx = g_nx_s[chunk, p]
+                    g_ny = g_ny_s[chunk, p]
+                    speed_n = speed_n_s[chunk, p]
+                    if speed_n > 0.0:
+                        g_nx += g_speed_n_s[chunk, p] * nx_s[chunk, p] / speed_n
+                        g_ny += g_speed_n_s[chunk, p] * ny_s[chunk, p] / speed_n
+                    grads[chunk, b, y, x, channels] += g_vx
+                    grads[chunk, b, y, x, channels + 1] += g_vy
+                    grads[chunk, b, y, x, channels + 2] += g_z_x_s[chunk, p]
+                    grad_neighbors[chunk, b, 0, y // tile, x // tile] += g_nx
+                    grad_neighbors[chunk, b, 1, y // tile, x // tile] += g_ny
+
+
+#: The kinds of the kernels' *_s scratch arguments, in order: i an int64 (chunks, _BLOCK) array, f a
+#: float64 one, c float64 (chunks, C, _BLOCK).
+_FORWARD_SCRATCH = "ii" + "f" * 11 + "c" + "ii" + "fff"
+_BACKWARD_SCRATCH = "ii" + "f" * 11 + "cc" + "ii" + "f" * 20
+
+
+def _scratch(kinds: str, chunks: int, channels: int) -> list[np.ndarray]:
+    shapes = {"i": (chunks, _BLOCK), "f": (chunks, _BLOCK), "c": (chunks, channels, _BLOCK)}
+    return [np.empty(shapes[kind], dtype=np.int64 if kind == "i" else np.float64) for kind in kinds]
 
 
 def _threads() -> int:
     return max(1, numba.get_num_threads())
-
-
-def _buffers(color: np.ndarray, velocity: np.ndarray, depth: np.ndarray) -> np.ndarray:
-    batch, channels, height, width = color.shape
-    buffers = np.empty((batch, height, width, channels + 3), dtype=color.dtype)
-    _interleave(color, velocity, depth, buffers)
-    return buffers
 
 
 def reconstruct_forward(
@@ -467,13 +681,14 @@ def reconstruct_forward(
     W), neighbors (B, 2, TH, TW) NeighborMax, counts (B, TH, TW) taps per tile (0: the image),
     jitter (B or 1, 1, H, W), all C-contiguous in one float dtype (counts int32). Returns the
     image and the per-pixel weight sum (B, H, W) that the backward needs."""
-    batch, _, height, width = color.shape
+    batch, channels, height, width = color.shape
     out = np.empty_like(color)
     weight = np.empty((batch, height, width), dtype=color.dtype)
-    settings = (int(tile), float(soft_z_extent), float(min_radius), bool(own_odd), row_order(batch * height))
     # Several chunks per thread: numba hands each thread one static share of the loop.
     chunks = min(batch * height, 4 * _threads())
-    _reconstruct_forward(_buffers(color, velocity, depth), neighbors, counts, jitter, *settings, chunks, out, weight)
+    settings = (int(tile), float(soft_z_extent), float(min_radius), int(own_odd), row_order(batch * height), chunks)
+    scratch = _scratch(_FORWARD_SCRATCH, chunks, channels)
+    _reconstruct_forward(_pairs(color, velocity, depth), color, velocity, depth, neighbors, counts, jitter, *settings, out, weight, *scratch)
     return out, weight
 
 
@@ -499,8 +714,10 @@ def reconstruct_backward(
     chunks = min(_threads(), batch * height)
     grads = np.zeros((chunks, batch, height, width, channels + 3), dtype=color.dtype)
     grad_neighbors = np.zeros((chunks, *neighbors.shape), dtype=color.dtype)
-    settings = (int(tile), float(soft_z_extent), float(min_radius), bool(own_odd), row_order(batch * height))
-    _reconstruct_backward(_buffers(color, velocity, depth), neighbors, counts, jitter, *settings, out, weight, grad_out, grads, grad_neighbors)
+    settings = (int(tile), float(soft_z_extent), float(min_radius), int(own_odd), row_order(batch * height))
+    scratch = _scratch(_BACKWARD_SCRATCH, chunks, channels)
+    arrays = (_pairs(color, velocity, depth), color, velocity, depth, neighbors, counts, jitter)
+    _reconstruct_backward(*arrays, *settings, out, weight, grad_out, grads, grad_neighbors, *scratch)
     total = np.empty((batch, channels + 3, height, width), dtype=color.dtype)
     _deinterleave_sum(grads, total)
     return total[:, :channels], total[:, channels : channels + 2], total[:, channels + 2 :], grad_neighbors.sum(axis=0)
