@@ -315,7 +315,7 @@ def _pair_read(pairs, index, below, fx, fy):
 def _reconstruct_forward(
     pairs, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, chunks, out, weight,
     count_s, middle_s, step_s, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s, weight_s, total_s, index_s, below_s, fx_s, fy_s, alpha_s,
-):  # fmt: skip
+):
     """The *_s scratch arrays hold one block per chunk: (chunks, _BLOCK), total_s (chunks, C, _BLOCK).
     own_odd is an int (0 or 1): see the note above on aliases."""
     batch, channels, height, width = color.shape
@@ -442,7 +442,7 @@ def _reconstruct_backward(
     count_s, middle_s, step_s, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, g_total_s, out_s,
     column_s, row_s, t_s, fx_s, fy_s, inside_x_s, inside_y_s, g_alpha_s, slope_x_s, slope_y_s, alpha_s, g_v_yx_s, g_v_yy_s, g_z_y_s,
     g_speed_x_s, g_z_x_s, g_vx_s, g_vy_s, g_length_x_s, g_nx_s, g_ny_s, g_speed_n_s,
-):  # fmt: skip
+):
     """The forward's layout (pairs, blocks of one row as vectors, scratch arguments) for the hand-written
     backward. Per tap index k: one vector loop places the taps, one per channel reads the colours, one
     runs the classifiers' derivatives; then a scalar loop scatters the gradients of the 4 pixels each
