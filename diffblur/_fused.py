@@ -335,10 +335,12 @@ def _reconstruct_forward(
             for start in range(0, width, _BLOCK):
                 size = min(_BLOCK, width - start)
                 taps = 0
+                fewest = 1 << 30  # equal to taps: every pixel has the same middle tap, skipped whole
                 for p in range(size):  # each pixel's state: NeighborMax, V[X], |V[X]|, Z[X], j
                     x = start + p
                     count = counts[b, y // tile, x // tile]
                     taps = max(taps, count)
+                    fewest = min(fewest, count)
                     count_s[chunk, p] = count
                     middle_s[chunk, p] = (count - 1) // 2
                     step_s[chunk, p] = 2.0 / (count + 1.0)
@@ -361,7 +363,10 @@ def _reconstruct_forward(
                     weight_s[chunk, p] = w
                     for c in range(channels):
                         total_s[chunk, c, p] = w * color[b, c, y, x]
+                shared_middle = (taps - 1) // 2 if fewest == taps else -1
                 for k in range(taps):
+                    if k == shared_middle:
+                        continue
                     own = own_odd * (k % 2)
                     for p in range(size):  # vectorized: no branches, gathers
                         count = count_s[chunk, p]
@@ -468,10 +473,12 @@ def _reconstruct_backward(
             for start in range(0, width, _BLOCK):
                 size = min(_BLOCK, width - start)
                 taps = 0
+                fewest = 1 << 30  # equal to taps: every pixel has the same middle tap, skipped whole
                 for p in range(size):
                     x = start + p
                     count = counts[b, y // tile, x // tile]
                     taps = max(taps, count)
+                    fewest = min(fewest, count)
                     count_s[chunk, p] = count
                     middle_s[chunk, p] = (count - 1) // 2
                     step_s[chunk, p] = 2.0 / (count + 1.0)
@@ -511,7 +518,10 @@ def _reconstruct_backward(
                     g_nx_s[chunk, p] = 0.0
                     g_ny_s[chunk, p] = 0.0
                     g_speed_n_s[chunk, p] = 0.0
+                shared_middle = (taps - 1) // 2 if fewest == taps else -1
                 for k in range(taps):
+                    if k == shared_middle:
+                        continue
                     own = own_odd * (k % 2)
                     for p in range(size):  # vectorized: the taps' positions
                         taken = (k < count_s[chunk, p]) & (k != middle_s[chunk, p])
