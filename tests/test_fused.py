@@ -17,6 +17,7 @@ pytest.importorskip("numba")
 import jax.numpy as jnp  # noqa: E402
 
 import jax_impl  # noqa: E402
+from diffblur import _fused  # noqa: E402
 import torch_impl  # noqa: E402
 
 BATCH, CHANNELS, HEIGHT, WIDTH = 2, 3, 11, 14
@@ -29,21 +30,26 @@ CASES = {
     "no jitter": dict(max_radius=3.0, samples=5, jitter="none"),
     "adaptive": dict(max_radius=4.0, samples=15, adaptive=True),
     "adaptive, early out": dict(max_radius=4.0, samples=15, adaptive=(3, 7), early_out=True),
+    # Tap 7, the middle of 15, is a real tap of the 9-tap class: blocks mixing them must not skip it.
+    "adaptive, classes past a middle": dict(max_radius=4.0, samples=15, adaptive=(5, 9)),
     "min radius, soft z": dict(max_radius=5.0, samples=9, min_radius=1.5, soft_z_extent=0.02),
 }
 
 
-def _scene(dtype=np.float64, seed=0):
-    """Two depth layers, a fast block over a slowly drifting background, one still corner tile."""
+def _scene(dtype=np.float64, seed=0, width=WIDTH):
+    """Two depth layers, a fast block over a slowly drifting background, one still corner tile; a
+    wider image gets a second fast block across the kernels' first block boundary (_fused._BLOCK)."""
     rng = np.random.default_rng(seed)
-    color = rng.random((BATCH, CHANNELS, HEIGHT, WIDTH))
-    velocity = np.zeros((BATCH, 2, HEIGHT, WIDTH))
+    color = rng.random((BATCH, CHANNELS, HEIGHT, width))
+    velocity = np.zeros((BATCH, 2, HEIGHT, width))
     velocity[:, 0] = 0.7
     velocity[:, :, 3:8, 4:10] = rng.uniform(-6, 6, size=(BATCH, 2, 1, 1))
+    if width > _fused._BLOCK:
+        velocity[:, :, 1:9, _fused._BLOCK - 7 : _fused._BLOCK + 5] = rng.uniform(-6, 6, size=(BATCH, 2, 1, 1))
     velocity[:, :, :, :] += rng.normal(0, 0.3, size=velocity.shape)
-    velocity[:, :, 8:, 10:] = 0.0  # a still region
-    depth = np.where(velocity[:, :1] ** 2 > 4.0, 1.0, 2.0) + rng.uniform(0, 0.05, size=(BATCH, 1, HEIGHT, WIDTH))
-    cotangent = rng.standard_normal((BATCH, CHANNELS, HEIGHT, WIDTH))
+    velocity[:, :, 8:, 10:14] = 0.0  # a still region
+    depth = np.where(velocity[:, :1] ** 2 > 4.0, 1.0, 2.0) + rng.uniform(0, 0.05, size=(BATCH, 1, HEIGHT, width))
+    cotangent = rng.standard_normal((BATCH, CHANNELS, HEIGHT, width))
     return [a.astype(dtype) for a in (color, velocity, depth, cotangent)]
 
 
@@ -84,6 +90,14 @@ def test_torch_fused_matches_pure_float64(case):
 def test_jax_fused_matches_pure_float64_under_jit(case):
     arrays = _scene()
     _assert_close(_jax_run(arrays, CASES[case], True, jax.jit), _jax_run(arrays, CASES[case], False), 1e-11)
+
+
+@pytest.mark.parametrize("case", ["default", "own directions", "adaptive, early out", "adaptive, classes past a middle"])
+def test_rows_wider_than_one_block(case):
+    """The kernels run each row in blocks of _fused._BLOCK pixels: several blocks, the last one
+    partial, blocks of one tap count (middle tap skipped whole) and of mixed counts (masked)."""
+    arrays = _scene(width=_fused._BLOCK + 23)
+    _assert_close(_torch_run(arrays, CASES[case], True), _torch_run(arrays, CASES[case], False), 1e-11)
 
 
 def test_float32_both_frameworks_agree():
