@@ -45,6 +45,7 @@ __all__ = [
     "reconstruct_forward",
     "reconstruct_unfused_reason",
     "tile_counts",
+    "use_fused",
 ]
 
 _INVERSE_CYLINDER_SPAN = 1.0 / (CYLINDER_OUTER - CYLINDER_INNER)
@@ -56,6 +57,17 @@ _ROW_INTERLEAVE = 16
 def available() -> bool:
     """Whether the fused kernels can run (numba imports)."""
     return numba is not None
+
+
+def use_fused(op: str, fused: bool | None, reason: str | None) -> bool:
+    """Whether `op` runs on its fused kernel, given the user's `fused` and why the kernel cannot run
+    these inputs (`reason`, None when it can): None takes the kernel where it can, True insists
+    (ValueError naming the reason), False never takes it."""
+    if fused is False:
+        return False
+    if reason is not None and fused:
+        raise ValueError(f"{op}(fused=True) cannot run: {reason}")
+    return reason is None
 
 
 def reconstruct_unfused_reason(o: Any, dtype_name: str) -> str | None:

@@ -83,13 +83,11 @@ def gather_blur(
     classes = adaptive_classes(adaptive, samples)
     pyramid = pyramid_option(pyramid, adaptive, sampling)
     if fused is not False:
+        from diffblur._fused import use_fused
         from jax_impl._fused import fused_gather, gather_unfused_reason
 
-        reason = gather_unfused_reason(color, sampling, pyramid)
-        if reason is None:
+        if use_fused("gather_blur", fused, gather_unfused_reason(color, sampling, pyramid)):
             return fused_gather(color, velocity, window, samples, classes, position_dtype(color.dtype))
-        if fused:
-            raise ValueError(f"gather_blur(fused=True) cannot run: {reason}")
     if classes is not None:
         from jax_impl._adaptive import adaptive_gather
 

@@ -148,13 +148,11 @@ def reconstruct(
     )
     jitter = _jitter_array(jitter, color)
     if fused is not False:
+        from diffblur._fused import use_fused
         from jax_impl._fused import fused_reconstruct, unfused_reason
 
-        reason = unfused_reason(o, color)
-        if reason is None:
+        if use_fused("reconstruct", fused, unfused_reason(o, color)):
             return fused_reconstruct(color, velocity, depth, jitter, o)
-        if fused:
-            raise ValueError(f"reconstruct(fused=True) cannot run: {reason}")
     if o.classes is not None:
         from jax_impl._adaptive import adaptive_reconstruct
 

@@ -351,12 +351,10 @@ def bezier_scatter(
     given = {name: _finite_values(name, value) for name, value in given.items()}
 
     if fused is not False:
+        from diffblur._fused import use_fused
         from jax_impl._fused_scatter import unfused_reason
 
-        reason = unfused_reason(color)
-        if reason is not None and fused:
-            raise ValueError(f"bezier_scatter(fused=True) cannot run: {reason}")
-        fused = reason is None
+        fused = use_fused("bezier_scatter", fused, unfused_reason(color))
 
     # Positions, offsets, splat weights and the sums in float32 for a half image (its dtype else).
     wide = position_dtype(color.dtype)

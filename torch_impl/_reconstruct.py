@@ -147,13 +147,11 @@ def reconstruct(
     )
     jitter = _jitter_tensor(jitter, color)
     if fused is not False:
+        from diffblur._fused import use_fused
         from torch_impl._fused import fused_reconstruct, unfused_reason
 
-        reason = unfused_reason(o, color, jitter)
-        if reason is None:
+        if use_fused("reconstruct", fused, unfused_reason(o, color, jitter)):
             return fused_reconstruct(color, velocity, depth, jitter, o)
-        if fused:
-            raise ValueError(f"reconstruct(fused=True) cannot run: {reason}")
     if o.classes is not None:
         from torch_impl._adaptive import adaptive_reconstruct
 
