@@ -235,8 +235,8 @@ def _deinterleave_sum(grads, out):
 # scratch arrays that are separate arguments of the parallel loop (numba marks non-aliasing arguments
 # `noalias`; a view or a bool flag copied inside the loop counts as an alias and turns that off), the
 # image is read as (left, right) pairs (`_pairs`: one 64-bit read per bilinear row for float32), and
-# a pixel whose tap is not taken (the middle tap, or past its tile's count) reads its own pixel
-# (t = 0) with weight 0 instead of branching.
+# a block is a run of tiles with one tap count (`_block_end`), so every lane takes the same taps and
+# adaptive sampling saves per tile, not per block.
 _BLOCK = 128
 
 
@@ -314,6 +314,17 @@ def _pairs(color: np.ndarray, velocity: np.ndarray, depth: np.ndarray) -> np.nda
 
 
 @_inline
+def _block_end(counts, b, tile_y, start, width, tile):
+    """Where the block that starts at column `start` ends: the run of tiles with the count of
+    `start`'s tile, at most _BLOCK pixels."""
+    count = counts[b, tile_y, start // tile]
+    end = min((start // tile + 1) * tile, width)
+    while end < width and end - start < _BLOCK and counts[b, tile_y, end // tile] == count:
+        end = min(end + tile, width)
+    return min(end, start + _BLOCK)
+
+
+@_inline
 def _pair_read(pairs, index, below, fx, fy):
     """Bilinear read of pair `index` (top row) and `index + below` (bottom row), as `_read`."""
     top_left, top_right = _pair(pairs, index)
@@ -326,7 +337,7 @@ def _pair_read(pairs, index, below, fx, fy):
 @_jit
 def _reconstruct_forward(
     pairs, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, chunks, out, weight,
-    count_s, middle_s, step_s, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s, weight_s, total_s, index_s, below_s, fx_s, fy_s, alpha_s,
+    jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s, weight_s, total_s, index_s, below_s, fx_s, fy_s, alpha_s,
 ):
     """The *_s scratch arrays hold one block per chunk: (chunks, _BLOCK), total_s (chunks, C, _BLOCK).
     own_odd is an int (0 or 1): see the note above on aliases."""
@@ -344,18 +355,20 @@ def _reconstruct_forward(
             y = row % height
             jb = b if jitter_batch > 1 else 0
             image_start = b * height * width * stored
-            for start in range(0, width, _BLOCK):
-                size = min(_BLOCK, width - start)
-                taps = 0
-                fewest = 1 << 30  # equal to taps: every pixel has the same middle tap, skipped whole
+            start = 0
+            while start < width:
+                end = _block_end(counts, b, y // tile, start, width, tile)
+                size = end - start
+                count = counts[b, y // tile, start // tile]
+                if count == 0:  # the early-out: the image
+                    for x in range(start, end):
+                        for c in range(channels):
+                            out[b, c, y, x] = color[b, c, y, x]
+                        weight[b, y, x] = 0.0
+                    start = end
+                    continue
                 for p in range(size):  # each pixel's state: NeighborMax, V[X], |V[X]|, Z[X], j
                     x = start + p
-                    count = counts[b, y // tile, x // tile]
-                    taps = max(taps, count)
-                    fewest = min(fewest, count)
-                    count_s[chunk, p] = count
-                    middle_s[chunk, p] = (count - 1) // 2
-                    step_s[chunk, p] = 2.0 / (count + 1.0)
                     jitter_s[chunk, p] = jitter[jb, 0, y, x]
                     nx = np.float64(neighbors[b, 0, y // tile, x // tile])
                     ny = np.float64(neighbors[b, 1, y // tile, x // tile])
@@ -375,16 +388,14 @@ def _reconstruct_forward(
                     weight_s[chunk, p] = w
                     for c in range(channels):
                         total_s[chunk, c, p] = w * color[b, c, y, x]
-                shared_middle = (taps - 1) // 2 if fewest == taps else -1
-                for k in range(taps):
-                    if k == shared_middle:
+                middle = (count - 1) // 2
+                step = 2.0 / (count + 1.0)
+                for k in range(count):
+                    if k == middle:
                         continue
                     own = own_odd * (k % 2)
                     for p in range(size):  # vectorized: no branches, gathers
-                        count = count_s[chunk, p]
-                        taken = (k < count) & (k != middle_s[chunk, p])  # `and` would copy a bool: an alias
-                        t = -1.0 + (k + jitter_s[chunk, p] + 1.0) * step_s[chunk, p]
-                        t = t if taken else 0.0
+                        t = -1.0 + (k + jitter_s[chunk, p] + 1.0) * step
                         dx = vx_s[chunk, p] if own != 0 else nx_s[chunk, p]
                         dy = vy_s[chunk, p] if own != 0 else ny_s[chunk, p]
                         speed = length_x_s[chunk, p] if own != 0 else speed_n_s[chunk, p]
@@ -414,7 +425,6 @@ def _reconstruct_forward(
                             + _soft_depth_compare(z_y, z_x, extent, inverse_extent) * _cone(distance, inverse_x)
                             + _cylinder(distance, inverse_y) * _cylinder(distance, inverse_x) * 2.0
                         )
-                        alpha = alpha if taken else 0.0
                         alpha_s[chunk, p] = alpha
                         weight_s[chunk, p] += alpha
                     for c in range(channels):
@@ -423,15 +433,11 @@ def _reconstruct_forward(
                             total_s[chunk, c, p] += alpha_s[chunk, p] * read
                 for p in range(size):
                     x = start + p
-                    if count_s[chunk, p] == 0:
-                        for c in range(channels):
-                            out[b, c, y, x] = color[b, c, y, x]
-                        weight[b, y, x] = 0.0
-                    else:
-                        w = weight_s[chunk, p]
-                        for c in range(channels):
-                            out[b, c, y, x] = total_s[chunk, c, p] / w
-                        weight[b, y, x] = w
+                    w = weight_s[chunk, p]
+                    for c in range(channels):
+                        out[b, c, y, x] = total_s[chunk, c, p] / w
+                    weight[b, y, x] = w
+                start = end
 
 
 @_inline
@@ -456,7 +462,7 @@ def _scatter_chunk(grads, chunk, b, channel, row0, row1, column0, column1, fx, f
 @_jit
 def _reconstruct_backward(
     pairs, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, out, weight, grad_out, grads, grad_neighbors,
-    count_s, middle_s, step_s, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, g_total_s, out_s,
+    jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, g_total_s, out_s,
     column_s, row_s, t_s, fx_s, fy_s, inside_x_s, inside_y_s, g_alpha_s, slope_x_s, slope_y_s, alpha_s, g_v_yx_s, g_v_yy_s, g_z_y_s,
     g_speed_x_s, g_z_x_s, g_vx_s, g_vy_s, g_length_x_s, g_nx_s, g_ny_s, g_speed_n_s,
 ):
@@ -482,18 +488,19 @@ def _reconstruct_backward(
             y = row % height
             jb = b if jitter_batch > 1 else 0
             image_start = b * height * width * stored
-            for start in range(0, width, _BLOCK):
-                size = min(_BLOCK, width - start)
-                taps = 0
-                fewest = 1 << 30  # equal to taps: every pixel has the same middle tap, skipped whole
+            start = 0
+            while start < width:
+                end = _block_end(counts, b, y // tile, start, width, tile)
+                size = end - start
+                count = counts[b, y // tile, start // tile]
+                if count == 0:  # the early-out: out = C[X]
+                    for x in range(start, end):
+                        for c in range(channels):
+                            grads[chunk, b, y, x, c] += grad_out[b, c, y, x]
+                    start = end
+                    continue
                 for p in range(size):
                     x = start + p
-                    count = counts[b, y // tile, x // tile]
-                    taps = max(taps, count)
-                    fewest = min(fewest, count)
-                    count_s[chunk, p] = count
-                    middle_s[chunk, p] = (count - 1) // 2
-                    step_s[chunk, p] = 2.0 / (count + 1.0)
                     jitter_s[chunk, p] = jitter[jb, 0, y, x]
                     nx = np.float64(neighbors[b, 0, y // tile, x // tile])
                     ny = np.float64(neighbors[b, 1, y // tile, x // tile])
@@ -511,17 +518,15 @@ def _reconstruct_backward(
                     inverse_x_s[chunk, p] = _floored_inverse(speed_x)
                     z_x_s[chunk, p] = depth[b, 0, y, x]
                     # out = total / w: d total = g / w, d w = -sum(g out) / w; per tap alpha and
-                    # alpha C[Y] both enter, so d alpha = sum(g (C[Y] - out)) / w. A pixel with count 0
-                    # (the early-out: out = C[X]) still fills every scratch entry, with no gradient,
-                    # so the vector loops read finite values in its lane.
-                    inverse_w = 1.0 / np.float64(weight[b, y, x]) if count > 0 else 0.0
+                    # alpha C[Y] both enter, so d alpha = sum(g (C[Y] - out)) / w.
+                    w = np.float64(weight[b, y, x])
                     g_center = 0.0
                     for c in range(channels):
-                        g_total = grad_out[b, c, y, x] * inverse_w
+                        g_total = grad_out[b, c, y, x] / w
                         g_total_s[chunk, c, p] = g_total
                         out_s[chunk, c, p] = out[b, c, y, x]
                         g_center += g_total * (color[b, c, y, x] - out[b, c, y, x])
-                        grads[chunk, b, y, x, c] += g_total / speed_x if count > 0 else grad_out[b, c, y, x]
+                        grads[chunk, b, y, x, c] += g_total / speed_x
                     g_speed_x_s[chunk, p] = -g_center / (speed_x * speed_x)
                     g_z_x_s[chunk, p] = 0.0
                     g_vx_s[chunk, p] = 0.0
@@ -530,15 +535,14 @@ def _reconstruct_backward(
                     g_nx_s[chunk, p] = 0.0
                     g_ny_s[chunk, p] = 0.0
                     g_speed_n_s[chunk, p] = 0.0
-                shared_middle = (taps - 1) // 2 if fewest == taps else -1
-                for k in range(taps):
-                    if k == shared_middle:
+                middle = (count - 1) // 2
+                step = 2.0 / (count + 1.0)
+                for k in range(count):
+                    if k == middle:
                         continue
                     own = own_odd * (k % 2)
                     for p in range(size):  # vectorized: the taps' positions
-                        taken = (k < count_s[chunk, p]) & (k != middle_s[chunk, p])
-                        t = -1.0 + (k + jitter_s[chunk, p] + 1.0) * step_s[chunk, p]
-                        t = t if taken else 0.0
+                        t = -1.0 + (k + jitter_s[chunk, p] + 1.0) * step
                         px = (start + p) + (vx_s[chunk, p] if own != 0 else nx_s[chunk, p]) * t
                         py = y + (vy_s[chunk, p] if own != 0 else ny_s[chunk, p]) * t
                         cx = min(max(px, 0.0), last_x)
@@ -550,8 +554,8 @@ def _reconstruct_backward(
                         t_s[chunk, p] = t
                         fx_s[chunk, p] = cx - column
                         fy_s[chunk, p] = cy - row0
-                        inside_x_s[chunk, p] = 1.0 if (px >= 0.0) & (px <= last_x) & taken else 0.0
-                        inside_y_s[chunk, p] = 1.0 if (py >= 0.0) & (py <= last_y) & taken else 0.0
+                        inside_x_s[chunk, p] = 1.0 if (px >= 0.0) & (px <= last_x) else 0.0
+                        inside_y_s[chunk, p] = 1.0 if (py >= 0.0) & (py <= last_y) else 0.0
                         g_alpha_s[chunk, p] = 0.0
                         slope_x_s[chunk, p] = 0.0
                         slope_y_s[chunk, p] = 0.0
@@ -566,7 +570,6 @@ def _reconstruct_backward(
                             slope_x_s[chunk, p] += g_total * slope_x  # times alpha below
                             slope_y_s[chunk, p] += g_total * slope_y
                     for p in range(size):  # vectorized: the classifiers and their derivatives
-                        taken = (k < count_s[chunk, p]) & (k != middle_s[chunk, p])
                         row0 = row_s[chunk, p]
                         index = image_start + (row0 * width + column_s[chunk, p]) * stored + channels
                         below = width * stored if row0 < height - 1 else 0
@@ -590,8 +593,7 @@ def _reconstruct_backward(
                         cylinder_y = _cylinder(distance, inverse_y)
                         cylinder_x = _cylinder(distance, inverse_x)
                         alpha = front * cone_y + behind * cone_x + cylinder_y * cylinder_x * 2.0
-                        alpha = alpha if taken else 0.0
-                        g_alpha = g_alpha_s[chunk, p] if taken else 0.0
+                        g_alpha = g_alpha_s[chunk, p]
                         # The classifiers.
                         g_front = g_alpha * cone_y
                         g_behind = g_alpha * cone_x
@@ -631,8 +633,6 @@ def _reconstruct_backward(
                         g_ny_s[chunk, p] += g_dy * (1 - own)
                         g_speed_n_s[chunk, p] += g_along * (1 - own)
                     for p in range(size):  # scalar: the 4 pixels each tap read
-                        if k >= count_s[chunk, p] or k == middle_s[chunk, p]:
-                            continue
                         row0 = row_s[chunk, p]
                         column = column_s[chunk, p]
                         row1 = min(row0 + 1, height - 1)
@@ -646,8 +646,6 @@ def _reconstruct_backward(
                         _scatter_chunk(grads, chunk, b, channels + 1, row0, row1, column, column1, fx, fy, g_v_yy_s[chunk, p])
                         _scatter_chunk(grads, chunk, b, channels + 2, row0, row1, column, column1, fx, fy, g_z_y_s[chunk, p])
                 for p in range(size):  # each pixel's own V[X], Z[X] and NeighborMax
-                    if count_s[chunk, p] == 0:
-                        continue
                     x = start + p
                     length_x = length_x_s[chunk, p]
                     g_length_x = g_length_x_s[chunk, p]
@@ -669,12 +667,13 @@ def _reconstruct_backward(
                     grads[chunk, b, y, x, channels + 2] += g_z_x_s[chunk, p]
                     grad_neighbors[chunk, b, 0, y // tile, x // tile] += g_nx
                     grad_neighbors[chunk, b, 1, y // tile, x // tile] += g_ny
+                start = end
 
 
 #: The kinds of the kernels' *_s scratch arguments, in order: i an int64 (chunks, _BLOCK) array, f a
 #: float64 one, c float64 (chunks, C, _BLOCK).
-_FORWARD_SCRATCH = "ii" + "f" * 11 + "c" + "ii" + "fff"
-_BACKWARD_SCRATCH = "ii" + "f" * 11 + "cc" + "ii" + "f" * 20
+_FORWARD_SCRATCH = "f" * 10 + "c" + "ii" + "fff"
+_BACKWARD_SCRATCH = "f" * 10 + "cc" + "ii" + "f" * 20
 
 
 def _scratch(kinds: str, chunks: int, channels: int) -> list[np.ndarray]:

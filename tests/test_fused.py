@@ -30,7 +30,7 @@ CASES = {
     "no jitter": dict(max_radius=3.0, samples=5, jitter="none"),
     "adaptive": dict(max_radius=4.0, samples=15, adaptive=True),
     "adaptive, early out": dict(max_radius=4.0, samples=15, adaptive=(3, 7), early_out=True),
-    # Tap 7, the middle of 15, is a real tap of the 9-tap class: blocks mixing them must not skip it.
+    # Tap 7, the middle of 15 (skipped), is a real tap of the 9-tap class beside it.
     "adaptive, classes past a middle": dict(max_radius=4.0, samples=15, adaptive=(5, 9)),
     "min radius, soft z": dict(max_radius=5.0, samples=9, min_radius=1.5, soft_z_extent=0.02),
 }
@@ -94,8 +94,8 @@ def test_jax_fused_matches_pure_float64_under_jit(case):
 
 @pytest.mark.parametrize("case", ["default", "own directions", "adaptive, early out", "adaptive, classes past a middle"])
 def test_rows_wider_than_one_block(case):
-    """The kernels run each row in blocks of _fused._BLOCK pixels: several blocks, the last one
-    partial, blocks of one tap count (middle tap skipped whole) and of mixed counts (masked)."""
+    """The kernels run each row in blocks of at most _fused._BLOCK pixels that end where the tiles'
+    tap count changes: several blocks, a partial last one, adaptive classes side by side."""
     arrays = _scene(width=_fused._BLOCK + 23)
     _assert_close(_torch_run(arrays, CASES[case], True), _torch_run(arrays, CASES[case], False), 1e-11)
 
