@@ -325,6 +325,28 @@ def _block_end(counts, b, tile_y, start, width, tile):
 
 
 @_inline
+def _pixel_state(velocity, depth, neighbors, jitter, b, jb, y, x, tile, min_radius, chunk, p, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s):
+    """Pixel X's scratch entries p of chunk `chunk`: its jitter, NeighborMax v_N and |v_N|, V[X],
+    |V[X]|, the classifiers' floored inverse speed and Z[X]. Returns the classifiers' speed."""
+    jitter_s[chunk, p] = jitter[jb, 0, y, x]
+    nx = np.float64(neighbors[b, 0, y // tile, x // tile])
+    ny = np.float64(neighbors[b, 1, y // tile, x // tile])
+    nx_s[chunk, p] = nx
+    ny_s[chunk, p] = ny
+    speed_n_s[chunk, p] = _length(nx, ny)
+    vx = np.float64(velocity[b, 0, y, x])
+    vy = np.float64(velocity[b, 1, y, x])
+    vx_s[chunk, p] = vx
+    vy_s[chunk, p] = vy
+    length_x = _length(vx, vy)
+    length_x_s[chunk, p] = length_x
+    speed_x = length_x if length_x >= min_radius else min_radius
+    inverse_x_s[chunk, p] = _floored_inverse(speed_x)
+    z_x_s[chunk, p] = depth[b, 0, y, x]
+    return speed_x
+
+
+@_inline
 def _pair_read(pairs, index, below, fx, fy):
     """Bilinear read of pair `index` (top row) and `index + below` (bottom row), as `_read`."""
     top_left, top_right = _pair(pairs, index)
@@ -369,21 +391,7 @@ def _reconstruct_forward(
                     continue
                 for p in range(size):  # each pixel's state: NeighborMax, V[X], |V[X]|, Z[X], j
                     x = start + p
-                    jitter_s[chunk, p] = jitter[jb, 0, y, x]
-                    nx = np.float64(neighbors[b, 0, y // tile, x // tile])
-                    ny = np.float64(neighbors[b, 1, y // tile, x // tile])
-                    nx_s[chunk, p] = nx
-                    ny_s[chunk, p] = ny
-                    speed_n_s[chunk, p] = _length(nx, ny)
-                    vx = np.float64(velocity[b, 0, y, x])
-                    vy = np.float64(velocity[b, 1, y, x])
-                    vx_s[chunk, p] = vx
-                    vy_s[chunk, p] = vy
-                    length_x = _length(vx, vy)
-                    length_x_s[chunk, p] = length_x
-                    speed_x = length_x if length_x >= min_radius else min_radius
-                    inverse_x_s[chunk, p] = _floored_inverse(speed_x)
-                    z_x_s[chunk, p] = depth[b, 0, y, x]
+                    speed_x = _pixel_state(velocity, depth, neighbors, jitter, b, jb, y, x, tile, min_radius, chunk, p, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s)
                     w = 1.0 / speed_x
                     weight_s[chunk, p] = w
                     for c in range(channels):
@@ -501,22 +509,8 @@ def _reconstruct_backward(
                     continue
                 for p in range(size):
                     x = start + p
-                    jitter_s[chunk, p] = jitter[jb, 0, y, x]
-                    nx = np.float64(neighbors[b, 0, y // tile, x // tile])
-                    ny = np.float64(neighbors[b, 1, y // tile, x // tile])
-                    nx_s[chunk, p] = nx
-                    ny_s[chunk, p] = ny
-                    speed_n_s[chunk, p] = _length(nx, ny)
-                    vx = np.float64(velocity[b, 0, y, x])
-                    vy = np.float64(velocity[b, 1, y, x])
-                    vx_s[chunk, p] = vx
-                    vy_s[chunk, p] = vy
-                    length_x = _length(vx, vy)
-                    length_x_s[chunk, p] = length_x
-                    speed_x = length_x if length_x >= min_radius else min_radius
+                    speed_x = _pixel_state(velocity, depth, neighbors, jitter, b, jb, y, x, tile, min_radius, chunk, p, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s)
                     speed_x_s[chunk, p] = speed_x
-                    inverse_x_s[chunk, p] = _floored_inverse(speed_x)
-                    z_x_s[chunk, p] = depth[b, 0, y, x]
                     # out = total / w: d total = g / w, d w = -sum(g out) / w; per tap alpha and
                     # alpha C[Y] both enter, so d alpha = sum(g (C[Y] - out)) / w.
                     w = np.float64(weight[b, y, x])
