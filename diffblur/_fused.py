@@ -361,7 +361,7 @@ def _reconstruct_forward(
     pairs, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, chunks, out, weight,
     jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s, weight_s, total_s, index_s, below_s, fx_s, fy_s, alpha_s,
 ):
-    """The *_s scratch arrays hold one block per chunk: (chunks, _BLOCK), total_s (chunks, C, _BLOCK).
+    """The *_s scratch arrays hold one block per chunk: (chunks, >= _BLOCK), total_s (chunks, C, >= _BLOCK).
     own_odd is an int (0 or 1): see the note above on aliases."""
     batch, channels, height, width = color.shape
     stored = channels + 3
@@ -479,8 +479,8 @@ def _reconstruct_backward(
     runs the classifiers' derivatives; then a scalar loop scatters the gradients of the 4 pixels each
     tap read (lanes may collide, so it cannot be a vector scatter).
     grads: (chunks, B, H, W, C + 3) zeros, one buffer per chunk of rows (C, V, Z gradients
-    interleaved); grad_neighbors: (chunks, B, 2, TH, TW) zeros; *_s scratch: (chunks, _BLOCK), g_total_s
-    and out_s (chunks, C, _BLOCK)."""
+    interleaved); grad_neighbors: (chunks, B, 2, TH, TW) zeros; *_s scratch: (chunks, >= _BLOCK), g_total_s
+    and out_s (chunks, C, >= _BLOCK)."""
     batch, channels, height, width = color.shape
     stored = channels + 3
     jitter_batch = jitter.shape[0]
@@ -664,14 +664,21 @@ def _reconstruct_backward(
                 start = end
 
 
-#: The kinds of the kernels' *_s scratch arguments, in order: i an int64 (chunks, _BLOCK) array, f a
-#: float64 one, c float64 (chunks, C, _BLOCK).
+#: The kinds of the kernels' *_s scratch arguments, in order: i an int64 (chunks, row) array, f a
+#: float64 one, c float64 (chunks, C, row), with row = _BLOCK + _SCRATCH_GAP.
 _FORWARD_SCRATCH = "f" * 10 + "c" + "ii" + "fff"
 _BACKWARD_SCRATCH = "f" * 10 + "cc" + "ii" + "f" * 20
 
 
+# Each scratch row is followed by 1 KiB that no thread touches. Side by side, one thread's row next to
+# another's, the backward on 2 threads took 365 ms at 720p instead of 250 (a gap of 256 B: 355 ms);
+# likely the prefetcher running ahead of one thread's row into the other's.
+_SCRATCH_GAP = 128
+
+
 def _scratch(kinds: str, chunks: int, channels: int) -> list[np.ndarray]:
-    shapes = {"i": (chunks, _BLOCK), "f": (chunks, _BLOCK), "c": (chunks, channels, _BLOCK)}
+    row = _BLOCK + _SCRATCH_GAP
+    shapes = {"i": (chunks, row), "f": (chunks, row), "c": (chunks, channels, row)}
     return [np.empty(shapes[kind], dtype=np.int64 if kind == "i" else np.float64) for kind in kinds]
 
 
@@ -699,8 +706,7 @@ def reconstruct_forward(
     batch, channels, height, width = color.shape
     out = np.empty_like(color)
     weight = np.empty((batch, height, width), dtype=color.dtype)
-    # Several chunks per thread: numba hands each thread one static share of the loop.
-    chunks = min(batch * height, 4 * _threads())
+    chunks = min(batch * height, _threads())
     settings = (int(tile), float(soft_z_extent), float(min_radius), int(own_odd), row_order(batch * height), chunks)
     scratch = _scratch(_FORWARD_SCRATCH, chunks, channels)
     _reconstruct_forward(_pairs(color, velocity, depth), color, velocity, depth, neighbors, counts, jitter, *settings, out, weight, *scratch)
@@ -833,6 +839,8 @@ def _gather_backward(buffers, velocity, counts, masses, tile, order, grad_out, g
     rows = batch * height
     for chunk in numba.prange(chunks):
         mine = grads[chunk]
+        # Accumulated in the thread's own memory: written per tap, grad_masses' rows lie side by side.
+        g_masses = np.zeros(grad_masses.shape[1:])
         for i in range(chunk * rows // chunks, (chunk + 1) * rows // chunks):
             row = order[i]
             b = row // height
@@ -863,7 +871,7 @@ def _gather_backward(buffers, velocity, counts, masses, tile, order, grad_out, g
                         _scatter(mine, b, c, row0, row1, column0, column1, fx, fy, g * mass)
                         g_fx += g * slope_x
                         g_fy += g * slope_y
-                    grad_masses[chunk, count, k] += g_mass
+                    g_masses[count, k] += g_mass
                     # The tap position is X - t V: the clamp at the border passes no gradient.
                     if inside_x:
                         g_vx -= mass * g_fx * t
@@ -871,6 +879,7 @@ def _gather_backward(buffers, velocity, counts, masses, tile, order, grad_out, g
                         g_vy -= mass * g_fy * t
                 grad_velocity[b, 0, y, x] = g_vx
                 grad_velocity[b, 1, y, x] = g_vy
+        grad_masses[chunk] = g_masses
 
 
 def _channels_last_buffers(color: np.ndarray) -> np.ndarray:

@@ -300,6 +300,8 @@ def _splat_backward(
     for chunk in numba.prange(chunks):
         depth_grads = grad_depth[chunk]
         g_extent = 0.0
+        # Accumulated in the thread's own memory: written per sample, grad_masses' rows lie side by side.
+        g_masses = np.zeros(count)
         for i in range(chunk * rows // chunks, (chunk + 1) * rows // chunks):
             row = order[i]
             b = row // height
@@ -375,13 +377,13 @@ def _splat_backward(
                         g_vx = 0.0
                         g_vy = 0.0
                         if paper:
-                            grad_masses[chunk, k] += g_weight * (2.0 * speed)
+                            g_masses[k] += g_weight * (2.0 * speed)
                             if speed > 0.0:  # the safe norm: no gradient at 0
                                 g_speed = g_weight * mass * 2.0
                                 g_vx = g_speed * vx / speed
                                 g_vy = g_speed * vy / speed
                         else:
-                            grad_masses[chunk, k] += g_weight
+                            g_masses[k] += g_weight
                         g_path = _add8(g_path, _position_grad(terms, arc, x, y, t, px, py, g_fx, g_fy, g_vx, g_vy))
                     depth_grads[b, y + 1, x + 1] += g_z_source
                 grad_color[b, 0, y, x] = g_red
@@ -390,6 +392,7 @@ def _splat_backward(
                 for p in range(path_channels):
                     grad_path[b, p, y, x] = g_path[p]
         grad_extent[chunk] += g_extent
+        grad_masses[chunk] += g_masses
 
 
 def _settings(color: np.ndarray, depth: np.ndarray, masses: np.ndarray, extent: np.ndarray) -> tuple:
