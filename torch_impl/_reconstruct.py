@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from functools import lru_cache
 
 import torch
 from jaxtyping import Float
@@ -39,6 +40,16 @@ def _at_least(speed, floor: float):
     return torch.where(speed < floor, floor, speed)
 
 
+@lru_cache(maxsize=4)
+def _noise_jitter(height: int, width: int, dtype: torch.dtype, device: torch.device) -> Tensor:
+    """The "noise" jitter, (1, 1, H, W), kept for the next call: the same every time, and computing
+    it took ~6 ms of a 720p fused forward's ~100. Read-only: nothing writes into it. Made outside
+    inference mode, so a first call under torch.inference_mode does not leave a tensor that autograd
+    may not save."""
+    with torch.inference_mode(False):
+        return (interleaved_gradient_noise(height, width, dtype=torch.float64, device=device) - 0.5).to(dtype).reshape(1, 1, height, width)
+
+
 def _jitter_tensor(jitter: str | Tensor, color: Tensor) -> Tensor:
     """The per-pixel jitter j in [-0.5, 0.5), (B or 1, 1, H, W)."""
     batch, _, height, width = color.shape
@@ -46,7 +57,9 @@ def _jitter_tensor(jitter: str | Tensor, color: Tensor) -> Tensor:
         checks.require_choice("jitter", jitter, JITTER_MODES)
         if jitter == "none":
             return torch.zeros(1, 1, height, width, dtype=color.dtype, device=color.device)
-        return (interleaved_gradient_noise(height, width, dtype=torch.float64, device=color.device) - 0.5).to(color.dtype).reshape(1, 1, height, width)
+        if torch.compiler.is_compiling():
+            return _noise_jitter.__wrapped__(height, width, color.dtype, color.device)
+        return _noise_jitter(height, width, color.dtype, color.device)
     jitter = _checks.image("jitter", jitter, channels=1)
     checks.require_same_batch_and_size("color", color.shape, [("jitter", jitter.shape)])
     _checks.same_dtype_and_device("jitter", jitter, "color", color)

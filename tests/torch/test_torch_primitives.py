@@ -58,6 +58,25 @@ def test_non_contiguous_and_channels_last_inputs_give_the_same_result():
             torch.testing.assert_close(out, expected[name], rtol=0, atol=0, msg=name)
 
 
+def test_reconstruct_under_inference_mode_then_with_gradients():
+    """The "noise" jitter is kept between calls: one made under inference mode must still be one
+    autograd may save."""
+    from torch_impl._reconstruct import _noise_jitter
+
+    _noise_jitter.cache_clear()  # so the call under inference mode is the one that makes it
+    generator = torch.Generator().manual_seed(3)
+    color = torch.rand(1, 3, 17, 23, generator=generator)
+    velocity = (torch.rand(1, 2, 17, 23, generator=generator) - 0.5) * 8
+    depth = torch.rand(1, 1, 17, 23, generator=generator) + 1
+    with torch.inference_mode():
+        expected = torch_impl.reconstruct(color, velocity, depth)
+    velocity.requires_grad_()
+    out = torch_impl.reconstruct(color, velocity, depth)
+    out.sum().backward()
+    torch.testing.assert_close(out.detach(), expected, rtol=0, atol=0)
+    assert velocity.grad.abs().sum() > 0
+
+
 def test_data_checks_are_skipped_not_wrong_under_compile():
     """Under torch.compile the extent sign check is skipped (documented); the result is what the
     formula gives, and eager mode still raises."""
