@@ -8,7 +8,7 @@ horizontal camera pan: the scene kornia's single-kernel blur models exactly), ru
 |---|---|
 | psnr_db, ssim | against the scene's accumulated ground truth (`diffblur.metrics`), float32 output |
 | forward_ms | median wall time of repeated forward passes after a warm-up; torch eager under no_grad, JAX `jax.jit` after compilation |
-| backward_ms | the same for forward + backward (sum of the output, gradient w.r.t. the setting's floating inputs); JAX `jit(value_and_grad)` |
+| backward_ms | the same for forward + backward (sum of the output, gradient w.r.t. the setting's floating inputs); JAX `jit(value_and_grad)`. Timed in turn with the forward (`diffblur.timing.median_ms_each`), so the machine's drift reaches both alike |
 | compile_s, compile_backward_s | JAX: lowering + XLA compilation of the forward / forward+backward (paid once per shape); torch eager: none |
 | peak_mb | resident-set high-water mark above the resting RSS during one forward + backward (Linux: malloc_trim, then /proc/self/clear_refs resets VmHWM) |
 | xla_temp_mb | JAX only: XLA's compiled memory_analysis() temporary buffers of the forward + backward |
@@ -39,7 +39,7 @@ from typing import Any, Callable
 import numpy as np
 
 from diffblur import checks, metrics
-from diffblur.timing import median_ms
+from diffblur.timing import median_ms, median_ms_each
 from diffblur.scenes import PRESETS, Camera, ImageTexture, Layer, Scene, Static, accumulate, photo, render_buffers, trace
 
 __all__ = ["SETTINGS", "TARGET_SETTINGS", "Setting", "run_benchmarks", "uniform_scene"]
@@ -285,10 +285,11 @@ class _TorchRunner:
             out.sum().backward()
 
         output = forward().numpy()
+        forward_ms, backward_ms = median_ms_each([forward, backward], repeats)
         return dict(
             output=output,
-            forward_ms=median_ms(forward, repeats),
-            backward_ms=median_ms(backward, repeats),
+            forward_ms=forward_ms,
+            backward_ms=backward_ms,
             peak_mb=_peak_rss_mb(backward),
         )
 
@@ -334,10 +335,11 @@ class _JaxRunner:
         fwd, _, fwd_compile = self._compile(key + ("forward",), forward_fn, arrays)
         bwd, temp, bwd_compile = self._compile(key + ("backward",), jax.value_and_grad(loss), grads, rest)
         output = np.asarray(jax.block_until_ready(fwd(arrays)))
+        forward_ms, backward_ms = median_ms_each([lambda: jax.block_until_ready(fwd(arrays)), lambda: jax.block_until_ready(bwd(grads, rest))], repeats)
         return dict(
             output=output,
-            forward_ms=median_ms(lambda: jax.block_until_ready(fwd(arrays)), repeats),
-            backward_ms=median_ms(lambda: jax.block_until_ready(bwd(grads, rest)), repeats),
+            forward_ms=forward_ms,
+            backward_ms=backward_ms,
             peak_mb=_peak_rss_mb(lambda: jax.block_until_ready(bwd(grads, rest))),
             compile_s=fwd_compile,
             compile_backward_s=bwd_compile,
@@ -658,7 +660,7 @@ def _markdown(results: dict) -> str:
         f"- machine: {m['cpu']}, {m['cores']} cores visible, torch threads {m['torch_threads']}, numba threads (fused kernels) {m.get('numba_threads')}, XLA_FLAGS '{m.get('xla_flags', '')}', {m['device']}; {m['platform']}",
         f"- versions: {versions}",
         f"- load average (1, 5, 15 min) before: {', '.join(f'{v:.2f}' for v in m['load_before'])}; after: {', '.join(f'{v:.2f}' for v in m['load_after'])}",
-        f"- timings: median of {results['repeats']} runs after one warm-up, float32, one image; PyTorch eager (forward under no_grad), "
+        f"- timings: median of {results['repeats']} runs after one warm-up, forward and fwd+bwd runs taking turns, float32, one image; PyTorch eager (forward under no_grad), "
         "JAX under `jax.jit`, timed after compilation, compile time in its own column (paid once per input shape)",
         "- fwd+bwd: forward, then the gradient of the output's sum w.r.t. the method's floating inputs (reconstruct: color, "
         "velocity, depth; gather: color, velocity; scatter: color, depth, offsets; kornia: image and angle)",

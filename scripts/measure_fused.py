@@ -7,7 +7,8 @@ w.r.t. the image and the angle).
 Part 2, adaptive sampling: a 512x512 scene that is 90 % still, full rate against adaptive=True, both
 ops, both frameworks (JAX jitted), fused and tensor ops, with the largest output difference.
 
-Times are medians of `--repeats` runs after one warm-up, in milliseconds.
+Times are medians of `--repeats` runs after one warm-up, the runs of a pair (forward and
+forward+backward, full rate and adaptive) taking turns, in milliseconds.
 
     PYTHONPATH=. python scripts/measure_fused.py [--repeats 3] [--only targets|adaptive]
 """
@@ -21,7 +22,7 @@ import time
 
 import numpy as np
 
-from diffblur.timing import median_ms
+from diffblur.timing import median_ms_each
 
 sys.path.insert(0, os.path.dirname(__file__))
 
@@ -42,7 +43,7 @@ def _torch_pair(op, arrays, options, repeats):
         inputs = [a.clone().requires_grad_() for a in arrays]
         fn(*inputs, **options).sum().backward()
 
-    return median_ms(forward, repeats), median_ms(forward_backward, repeats)
+    return tuple(median_ms_each([forward, forward_backward], repeats))
 
 
 def _jax_pair(op, arrays, options, repeats):
@@ -60,8 +61,7 @@ def _jax_pair(op, arrays, options, repeats):
     compile_ms = 1e3 * (time.perf_counter() - start)
     return (
         compile_ms,
-        median_ms(lambda: jax.block_until_ready(forward(*arrays)), repeats),
-        median_ms(lambda: jax.block_until_ready(gradient(*arrays)), repeats),
+        *median_ms_each([lambda: jax.block_until_ready(forward(*arrays)), lambda: jax.block_until_ready(gradient(*arrays))], repeats),
     )
 
 
@@ -92,7 +92,8 @@ def targets(repeats: int) -> None:
         image, direction = color.clone().requires_grad_(), angle.clone().requires_grad_()
         kornia.filters.motion_blur(image, 31, direction, 0.0, border_type="replicate", mode="bilinear").sum().backward()
 
-    print(f"kornia motion_blur k=31: forward {median_ms(kornia_forward, repeats):.0f}, forward+backward {median_ms(kornia_forward_backward, repeats):.0f}")
+    kornia_ms = median_ms_each([kornia_forward, kornia_forward_backward], repeats)
+    print(f"kornia motion_blur k=31: forward {kornia_ms[0]:.0f}, forward+backward {kornia_ms[1]:.0f}")
 
 
 def adaptive(repeats: int) -> None:
@@ -124,7 +125,7 @@ def adaptive(repeats: int) -> None:
                     tiled = lambda f=tiled_jit, arrays=arrays: np.asarray(f(*arrays))  # noqa: E731
                 with torch.no_grad():
                     difference = float(np.abs(full() - tiled()).max())
-                    full_ms, tiled_ms = median_ms(full, repeats), median_ms(tiled, repeats)
+                    full_ms, tiled_ms = median_ms_each([full, tiled], repeats)
                 print(
                     f"{op:<12} {path:<11} {framework:<6} full {full_ms:7.1f}  adaptive {tiled_ms:6.1f}  "
                     f"{full_ms / tiled_ms:4.1f}x  max difference {difference:.1e}",

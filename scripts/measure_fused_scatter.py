@@ -6,7 +6,8 @@ the push-pull fill; 16 points per curve (what samples=None picks for these 16 px
 and forward+backward (w.r.t. color, depth and both offsets) in PyTorch (eager; also samples=None,
 which measures the paths with tensor ops first) and JAX (jitted, compile time reported apart).
 
-Times are medians of `--repeats` runs after one warm-up, in milliseconds.
+Times are medians of `--repeats` runs after one warm-up, forward and forward+backward runs taking
+turns, in milliseconds.
 
     PYTHONPATH=. python scripts/measure_fused_scatter.py [--repeats 3] [--fused-only]
 """
@@ -19,7 +20,7 @@ import time
 
 import numpy as np
 
-from diffblur.timing import median_ms
+from diffblur.timing import median_ms_each
 
 HALF_SPREAD = 8.0
 SAMPLES = 16
@@ -51,7 +52,7 @@ def torch_times(arrays, options, repeats):
         inputs = [t.clone().requires_grad_() for t in tensors]
         torch_impl.bezier_scatter(*inputs, **options).sum().backward()
 
-    return median_ms(forward, repeats), median_ms(forward_backward, repeats)
+    return tuple(median_ms_each([forward, forward_backward], repeats))
 
 
 def jax_times(arrays, options, repeats):
@@ -69,8 +70,7 @@ def jax_times(arrays, options, repeats):
     compile_ms = 1e3 * (time.perf_counter() - start)
     return (
         compile_ms,
-        median_ms(lambda: jax.block_until_ready(forward(*inputs)), repeats),
-        median_ms(lambda: jax.block_until_ready(gradient(*inputs)), repeats),
+        *median_ms_each([lambda: jax.block_until_ready(forward(*inputs)), lambda: jax.block_until_ready(gradient(*inputs))], repeats),
     )
 
 

@@ -67,3 +67,13 @@ def test_pareto_front_keeps_only_undominated_points():
 def test_bench_rejects_unknown_scene(capsys):
     assert main(["bench", "--quick", "--scenes", "nowhere", "--out", "unused"]) == 2
     assert "scenes" in capsys.readouterr().err
+
+
+def test_timed_calls_take_turns():
+    """median_ms_each interleaves its functions (so drift reaches all alike), warm-up rounds first."""
+    from diffblur.timing import median_ms_each
+
+    calls = []
+    times = median_ms_each([lambda: calls.append("forward"), lambda: calls.append("backward")], repeats=3, warmup=1)
+    assert calls == ["forward", "backward"] * 4
+    assert len(times) == 2 and all(t >= 0 for t in times)
