@@ -168,11 +168,16 @@ def _splat(
 
 
 def _longest(kind: str, terms: tuple, x: Array, y: Array) -> float:
-    """Length in pixels of the longest curve, measured along a polyline of LENGTH_SEGMENTS pieces."""
+    """Length in pixels of the longest curve, measured along a polyline of LENGTH_SEGMENTS pieces,
+    added one piece at a time in order, as the PyTorch backend does."""
     terms = jax.lax.stop_gradient(terms)
-    times = jnp.asarray(length_times(), dtype=x.dtype).reshape(-1, 1, 1, 1)
-    px, py, _, _ = _point(kind, terms, x, y, times)
-    length = _safe_hypot(px[1:] - px[:-1], py[1:] - py[:-1]).sum(axis=0)
+    length, previous = None, None
+    for time in length_times():
+        px, py, _, _ = _point(kind, terms, x, y, jnp.full((1, 1, 1, 1), time, dtype=x.dtype))
+        if previous is not None:
+            piece = _safe_hypot(px - previous[0], py - previous[1])
+            length = piece if length is None else length + piece
+        previous = (px, py)
     try:
         return float(length.max())
     except jax.errors.ConcretizationTypeError as error:
