@@ -44,9 +44,7 @@ def _jitter_array(jitter: str | Array, color: Array) -> Array:
         checks.require_choice("jitter", jitter, JITTER_MODES)
         if jitter == "none":
             return jnp.zeros((1, 1, height, width), dtype=color.dtype)
-        # Centred in float64, then cast, as the PyTorch backend does, so both give the same bits.
-        noise = reference.interleaved_gradient_noise(height, width) - 0.5
-        return jnp.asarray(noise.astype(color.dtype)).reshape(1, 1, height, width)
+        return jnp.asarray(reference.noise_jitter(height, width).astype(color.dtype)).reshape(1, 1, height, width)
     jitter = _checks.image("jitter", jitter, channels=1)
     checks.require_same_batch_and_size("color", color.shape, [("jitter", jitter.shape)])
     _checks.same_dtype("jitter", jitter, "color", color)

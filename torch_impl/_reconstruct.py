@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import torch
 from jaxtyping import Float
 from torch import Tensor
 from torch.utils.checkpoint import checkpoint
 
-from diffblur import checks
+from diffblur import checks, reference
 from diffblur.conventions import (
     DEFAULT_MAX_RADIUS,
     DEFAULT_MIN_RADIUS,
@@ -28,7 +26,6 @@ from torch_impl._primitives import (
     _cylinder,
     _safe_length,
     _soft_depth_compare,
-    interleaved_gradient_noise,
     neighbor_max,
     tile_max,
 )
@@ -40,14 +37,10 @@ def _at_least(speed, floor: float):
     return torch.where(speed < floor, floor, speed)
 
 
-@lru_cache(maxsize=4)
+@torch.compiler.assume_constant_result
 def _noise_jitter(height: int, width: int, dtype: torch.dtype, device: torch.device) -> Tensor:
-    """The "noise" jitter, (1, 1, H, W), kept for the next call: the same every time, and computing
-    it took ~6 ms of a 720p fused forward's ~100. Read-only: nothing writes into it. Made outside
-    inference mode, so a first call under torch.inference_mode does not leave a tensor that autograd
-    may not save."""
-    with torch.inference_mode(False):
-        return (interleaved_gradient_noise(height, width, dtype=torch.float64, device=device) - 0.5).to(dtype).reshape(1, 1, height, width)
+    """`diffblur.reference.noise_jitter` as a (1, 1, H, W) tensor, which torch.compile keeps as a constant."""
+    return torch.tensor(reference.noise_jitter(height, width), dtype=dtype, device=device).reshape(1, 1, height, width)
 
 
 def _jitter_tensor(jitter: str | Tensor, color: Tensor) -> Tensor:
@@ -57,8 +50,6 @@ def _jitter_tensor(jitter: str | Tensor, color: Tensor) -> Tensor:
         checks.require_choice("jitter", jitter, JITTER_MODES)
         if jitter == "none":
             return torch.zeros(1, 1, height, width, dtype=color.dtype, device=color.device)
-        if torch.compiler.is_compiling():
-            return _noise_jitter.__wrapped__(height, width, color.dtype, color.device)
         return _noise_jitter(height, width, color.dtype, color.device)
     jitter = _checks.image("jitter", jitter, channels=1)
     checks.require_same_batch_and_size("color", color.shape, [("jitter", jitter.shape)])

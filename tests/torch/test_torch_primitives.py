@@ -59,11 +59,11 @@ def test_non_contiguous_and_channels_last_inputs_give_the_same_result():
 
 
 def test_reconstruct_under_inference_mode_then_with_gradients():
-    """The "noise" jitter is kept between calls: one made under inference mode must still be one
-    autograd may save."""
-    from torch_impl._reconstruct import _noise_jitter
+    """The "noise" jitter is kept between calls (`diffblur.reference.noise_jitter`): what a first
+    call under inference mode keeps must not stop a later call from being differentiated."""
+    from diffblur import reference
 
-    _noise_jitter.cache_clear()  # so the call under inference mode is the one that makes it
+    reference.noise_jitter.cache_clear()  # so the call under inference mode is the one that makes it
     generator = torch.Generator().manual_seed(3)
     color = torch.rand(1, 3, 17, 23, generator=generator)
     velocity = (torch.rand(1, 2, 17, 23, generator=generator) - 0.5) * 8
