@@ -26,6 +26,7 @@ from torch_impl._primitives import (
     _cylinder,
     _safe_length,
     _soft_depth_compare,
+    interleaved_gradient_noise,
     neighbor_max,
     tile_max,
 )
@@ -37,12 +38,6 @@ def _at_least(speed, floor: float):
     return torch.where(speed < floor, floor, speed)
 
 
-@torch.compiler.assume_constant_result
-def _noise_jitter(height: int, width: int, dtype: torch.dtype, device: torch.device) -> Tensor:
-    """`diffblur.reference.noise_jitter` as a (1, 1, H, W) tensor, which torch.compile keeps as a constant."""
-    return torch.tensor(reference.noise_jitter(height, width), dtype=dtype, device=device).reshape(1, 1, height, width)
-
-
 def _jitter_tensor(jitter: str | Tensor, color: Tensor) -> Tensor:
     """The per-pixel jitter j in [-0.5, 0.5), (B or 1, 1, H, W)."""
     batch, _, height, width = color.shape
@@ -50,7 +45,11 @@ def _jitter_tensor(jitter: str | Tensor, color: Tensor) -> Tensor:
         checks.require_choice("jitter", jitter, JITTER_MODES)
         if jitter == "none":
             return torch.zeros(1, 1, height, width, dtype=color.dtype, device=color.device)
-        return _noise_jitter(height, width, color.dtype, color.device)
+        if torch.compiler.is_compiling():  # computed inside the graph (one reconstruct may appear twice)
+            noise = interleaved_gradient_noise(height, width, dtype=torch.float64, device=color.device) - 0.5
+        else:  # the array kept by the reference, which JAX casts too
+            noise = torch.tensor(reference.noise_jitter(height, width), device=color.device)
+        return noise.to(color.dtype).reshape(1, 1, height, width)
     jitter = _checks.image("jitter", jitter, channels=1)
     checks.require_same_batch_and_size("color", color.shape, [("jitter", jitter.shape)])
     _checks.same_dtype_and_device("jitter", jitter, "color", color)
