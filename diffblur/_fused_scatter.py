@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-from diffblur._fused import _inline, _jit, _length, _soft_depth_compare, _threads, numba, row_order
+from diffblur._fused import _inline, _jit, _length, _soft_depth_compare, _threads, numba, read_only, row_order
 from diffblur._scatter_options import point_times
 
 __all__ = ["ARC_CHANNELS", "BEZIER_CHANNELS", "splat_backward", "splat_forward", "splat_unfused_reason"]
@@ -430,6 +430,7 @@ def splat_forward(
     color (B, C, H, W), depth (B, 1, H, W), path (B, P, H, W) (see BEZIER_CHANNELS), masses (K,),
     extent (0-d, already floored as `_soft_depth_compare` does), all C-contiguous in one float dtype;
     moving (B, H, W) bool, the pixels that splat."""
+    color, depth, path, masses, extent, moving = read_only(color, depth, path, masses, extent, moving)
     batch, channels, height, width = color.shape
     padded_depth, times, extent_value, order = _settings(color, depth, masses, extent)
     chunks = min(_threads(), batch * height)
@@ -466,6 +467,7 @@ def splat_backward(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Gradients of `splat_forward`'s sums w.r.t. color, depth, path, masses and extent (0-d), given
     the sums' gradient grad_sums (B, C + 1, H, W)."""
+    color, depth, path, masses, extent, moving, grad_sums = read_only(color, depth, path, masses, extent, moving, grad_sums)
     batch, channels, height, width = color.shape
     padded_depth, times, extent_value, order = _settings(color, depth, masses, extent)
     chunks = min(_threads(), batch * height)
