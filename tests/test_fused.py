@@ -185,3 +185,15 @@ def test_batch_items_do_not_mix():
     whole = torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, fused=True)
     single = torch_impl.reconstruct(color[1:], velocity[1:], depth[1:], max_radius=4.0, fused=True)
     torch.testing.assert_close(whole[1:], single, rtol=0, atol=0)
+
+
+def test_both_frameworks_run_one_compiled_kernel_per_dtype():
+    """numba compiles a kernel once per argument type, read-only arrays (JAX's) apart from writable
+    ones (PyTorch's): both frameworks must reach the kernels with one type, or every kernel is
+    compiled twice in a process that runs both."""
+    arrays = _scene()
+    _torch_run(arrays, CASES["default"], fused=True)
+    _jax_run(arrays, CASES["default"], fused=True)
+    for kernel in (_fused._reconstruct_forward, _fused._reconstruct_backward):
+        float64_types = {signature for signature in kernel.signatures if str(signature[1].dtype) == "float64"}
+        assert len(float64_types) == 1, float64_types
