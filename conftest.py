@@ -21,3 +21,19 @@ if jax is not None:
     jax.config.update("jax_enable_x64", True)
     jax.config.update("jax_numpy_dtype_promotion", "strict")
     jax.config.update("jax_numpy_rank_promotion", "raise")
+
+
+def pytest_configure(config):
+    """In pytest-xdist's controller, compile the fused kernels once, before the workers start (see
+    tests/warm_kernels.py): one process per dtype, side by side. A warm cache makes this a few
+    seconds; a plain run without workers compiles as it goes, as before."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+        return
+    root = Path(__file__).parent
+    runs = [subprocess.Popen([sys.executable, "-m", "tests.warm_kernels", dtype], cwd=root) for dtype in ("float32", "float64")]
+    for run in runs:
+        run.wait()
