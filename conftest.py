@@ -29,11 +29,17 @@ def pytest_configure(config):
     seconds; a plain run without workers compiles as it goes, as before."""
     import subprocess
     import sys
+    import time
     from pathlib import Path
 
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
         return
+    terminal = config.pluginmanager.get_plugin("terminalreporter")
+    say = terminal.write_line if terminal is not None else print
+    say("compiling the fused kernels into numba's cache first (tests/warm_kernels.py): ~50 s on a cold cache")
+    start = time.perf_counter()
     root = Path(__file__).parent
     runs = [subprocess.Popen([sys.executable, "-m", "tests.warm_kernels", dtype], cwd=root) for dtype in ("float32", "float64")]
-    for run in runs:
-        run.wait()
+    failed = [run.args[-1] for run in runs if run.wait() != 0]
+    # A failure here shows again, with its test, where the tests call the kernel.
+    say(f"fused kernels ready in {time.perf_counter() - start:.0f} s" + (f" (warm-up failed: {', '.join(failed)})" if failed else ""))
