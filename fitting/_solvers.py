@@ -71,7 +71,7 @@ def _optimistix_solver(solver: str, learning_rate: float, matrix_free: bool) -> 
     if solver == "lm":
         # Matrix-free for many parameters: conjugate gradients on the normal equations, which only
         # need Jacobian-vector products and their transposes, instead of a dense QR.
-        linear = lx.NormalCG(rtol=1e-6, atol=1e-9, max_steps=50) if matrix_free else lx.QR()
+        linear = lx.Normal(lx.CG(rtol=1e-6, atol=1e-9, max_steps=50)) if matrix_free else lx.QR()
         return optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=linear)
     if solver == "dogleg":
         return optx.Dogleg(rtol=rtol, atol=atol)

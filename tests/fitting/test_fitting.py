@@ -171,8 +171,8 @@ def test_levenberg_marquardt_is_matrix_free_for_a_dense_field():
 
     from fitting import _solvers
 
-    # lineax.NormalCG(...) builds a Normal(CG) solver
-    assert isinstance(_solvers._optimistix_solver("lm", 0.1, matrix_free=True).descent.linear_solver, lx.Normal)
+    matrix_free = _solvers._optimistix_solver("lm", 0.1, matrix_free=True).descent.linear_solver
+    assert isinstance(matrix_free, lx.Normal) and isinstance(matrix_free.inner_solver, lx.CG)
     assert isinstance(_solvers._optimistix_solver("lm", 0.1, matrix_free=False).descent.linear_solver, lx.QR)
     assert _solvers.default_solver("jax", "dense") == "lbfgs" and _solvers.default_solver("jax", "global") == "dogleg"
 
