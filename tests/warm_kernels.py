@@ -28,6 +28,8 @@ def warm(dtype_name: str) -> None:
     torch_impl.gather_blur(color, velocity, fused=True).sum().backward()
     torch_impl.gather_blur(color, velocity, adaptive=True, fused=True).sum().backward()
     torch_impl.bezier_scatter(color, depth, -velocity, velocity, fused=True).sum().backward()
+    # Another channel count than the splats' group of 3: they then run on padded (writable) copies.
+    torch_impl.bezier_scatter(color[:, :1], depth, -velocity, velocity, fused=True).sum().backward()
 
 
 if __name__ == "__main__":
