@@ -482,7 +482,8 @@ def _scatter_chunk(grads, chunk, b, channel, row0, row1, column0, column1, fx, f
 
 @_jit
 def _reconstruct_backward(
-    pairs, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, out, weight, grad_out, grads, grad_neighbors,
+    pairs, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, scatter_color, scatter_velocity, scatter_depth,
+    out, weight, grad_out, grads, grad_neighbors,
     jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, g_total_s, out_s,
     column_s, row_s, t_s, fx_s, fy_s, inside_x_s, inside_y_s, g_alpha_s, slope_x_s, slope_y_s, alpha_s, g_v_yx_s, g_v_yy_s, g_z_y_s,
     g_speed_x_s, g_z_x_s, g_vx_s, g_vy_s, g_length_x_s, g_nx_s, g_ny_s, g_speed_n_s,
@@ -490,7 +491,8 @@ def _reconstruct_backward(
     """The forward's layout (pairs, blocks of one row as vectors, scratch arguments) for the hand-written
     backward. Per tap index k: one vector loop places the taps, one per channel reads the colours, one
     runs the classifiers' derivatives; then a scalar loop scatters the gradients of the 4 pixels each
-    tap read (lanes may collide, so it cannot be a vector scatter).
+    tap read (lanes may collide, so it cannot be a vector scatter), for the inputs whose scatter_* flag
+    is 1 (ints: see the note above on aliases); the other inputs' gradients come out incomplete.
     grads: (chunks, B, H, W, C + 3) zeros, one buffer per chunk of rows (C, V, Z gradients
     interleaved); grad_neighbors: (chunks, B, 2, TH, TW) zeros; *_s scratch: (chunks, >= _BLOCK), g_total_s
     and out_s (chunks, C, >= _BLOCK)."""
@@ -647,11 +649,14 @@ def _reconstruct_backward(
                         fx = fx_s[chunk, p]
                         fy = fy_s[chunk, p]
                         alpha = alpha_s[chunk, p]
-                        for c in range(channels):
-                            _scatter_chunk(grads, chunk, b, c, row0, row1, column, column1, fx, fy, alpha * g_total_s[chunk, c, p])
-                        _scatter_chunk(grads, chunk, b, channels, row0, row1, column, column1, fx, fy, g_v_yx_s[chunk, p])
-                        _scatter_chunk(grads, chunk, b, channels + 1, row0, row1, column, column1, fx, fy, g_v_yy_s[chunk, p])
-                        _scatter_chunk(grads, chunk, b, channels + 2, row0, row1, column, column1, fx, fy, g_z_y_s[chunk, p])
+                        if scatter_color != 0:
+                            for c in range(channels):
+                                _scatter_chunk(grads, chunk, b, c, row0, row1, column, column1, fx, fy, alpha * g_total_s[chunk, c, p])
+                        if scatter_velocity != 0:
+                            _scatter_chunk(grads, chunk, b, channels, row0, row1, column, column1, fx, fy, g_v_yx_s[chunk, p])
+                            _scatter_chunk(grads, chunk, b, channels + 1, row0, row1, column, column1, fx, fy, g_v_yy_s[chunk, p])
+                        if scatter_depth != 0:
+                            _scatter_chunk(grads, chunk, b, channels + 2, row0, row1, column, column1, fx, fy, g_z_y_s[chunk, p])
                 for p in range(size):  # each pixel's own V[X], Z[X] and NeighborMax
                     x = start + p
                     length_x = length_x_s[chunk, p]
@@ -742,21 +747,30 @@ def reconstruct_backward(
     soft_z_extent: float,
     min_radius: float,
     own_odd: bool,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    needs: tuple[bool, bool, bool] = (True, True, True),
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """Gradients of `reconstruct_forward`'s image w.r.t. color, velocity, depth and neighbors,
-    given the forward's out and weight and the output's gradient grad_out."""
+    given the forward's out and weight and the output's gradient grad_out. needs: whether color,
+    velocity and depth want theirs; None for the others, whose scatter to the taps' pixels (most of
+    the backward's time) is skipped. neighbors' comes with velocity's."""
     color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out = read_only(color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out)
     batch, channels, height, width = color.shape
     chunks = min(_threads(), batch * height)
     grads = np.zeros((chunks, batch, height, width, channels + 3), dtype=color.dtype)
     grad_neighbors = np.zeros((chunks, *neighbors.shape), dtype=color.dtype)
-    settings = (int(tile), float(soft_z_extent), float(min_radius), int(own_odd), row_order(batch * height))
+    need_color, need_velocity, need_depth = (bool(need) for need in needs)
+    settings = (int(tile), float(soft_z_extent), float(min_radius), int(own_odd), row_order(batch * height), int(need_color), int(need_velocity), int(need_depth))
     scratch = _scratch(_BACKWARD_SCRATCH, chunks, channels)
     arrays = (_pairs(color, velocity, depth), color, velocity, depth, neighbors, counts, jitter)
     _reconstruct_backward(*arrays, *settings, out, weight, grad_out, grads, grad_neighbors, *scratch)
     total = np.empty((batch, channels + 3, height, width), dtype=color.dtype)
     _deinterleave_sum(grads, total)
-    return total[:, :channels], total[:, channels : channels + 2], total[:, channels + 2 :], grad_neighbors.sum(axis=0)
+    return (
+        total[:, :channels] if need_color else None,
+        total[:, channels : channels + 2] if need_velocity else None,
+        total[:, channels + 2 :] if need_depth else None,
+        grad_neighbors.sum(axis=0) if need_velocity else None,
+    )
 
 
 # -- gather_blur ------------------------------------------------------------------------------------

@@ -59,8 +59,10 @@ class _FusedReconstruct(torch.autograd.Function):
     @once_differentiable
     def backward(ctx, grad_out):
         arrays = [_array(t) for t in ctx.saved_tensors]
-        grads = _fused.reconstruct_backward(*arrays, _array(grad_out), **ctx.settings)
-        return (*(torch.from_numpy(g) for g in grads), None, None, None)
+        color, velocity, depth, neighbors = ctx.needs_input_grad[:4]
+        # Only the gradients asked for: fitting a velocity skips the colour's and depth's scatter.
+        grads = _fused.reconstruct_backward(*arrays, _array(grad_out), needs=(color, velocity or neighbors, depth), **ctx.settings)
+        return (*(None if g is None else torch.from_numpy(g) for g in grads), None, None, None)
 
 
 def fused_reconstruct(color: Tensor, velocity: Tensor, depth: Tensor, jitter: Tensor, o) -> Tensor:
