@@ -22,11 +22,12 @@ from diffblur._scatter_options import (
     FILLS,
     MID_PREV_TIME,
     constant_masses,
+    curve_point,
     has_constant_parameters,
-    length_times,
     point_count,
     point_masses,
     point_times,
+    polyline_length,
     resolve_options,
     resolve_path,
     traced_count_message,
@@ -90,51 +91,6 @@ def _bezier_terms(degree: int, prev: Array, nxt: Array, mid: Array | None) -> tu
     return (None, half_difference - cubic, half_sum, cubic)
 
 
-def _position(kind: str, terms: tuple, x: Array, y: Array, t: Array) -> tuple[Array, Array]:
-    """Positions (px, py) at the times t (K, 1, 1, 1), (K, B, H, W) each.
-
-    x, y: (1, 1, H, W) pixel centres. kind "bezier": terms = (constant, linear, quadratic, cubic), each
-    (B, 2, H, W) or None; "arc": terms = (center, angle)."""
-    if kind == "arc":
-        center, angle = terms
-        cx, cy, a = center[None, :, 0], center[None, :, 1], angle[None, :, 0]
-        rx, ry = x - cx, y - cy
-        cos, sin = jnp.cos(a * t), jnp.sin(a * t)
-        return cx + cos * rx - sin * ry, cy + sin * rx + cos * ry
-    constant, linear, quadratic, cubic = terms
-    positions = []
-    for axis, start in ((0, x), (1, y)):
-        offset = linear[None, :, axis] * t
-        if quadratic is not None:
-            offset = offset + quadratic[None, :, axis] * (t * t)
-        if cubic is not None:
-            offset = offset + cubic[None, :, axis] * (t * t * t)
-        if constant is not None:
-            offset = offset + constant[None, :, axis]
-        positions.append(start + offset)
-    return positions[0], positions[1]
-
-
-def _point(kind: str, terms: tuple, x: Array, y: Array, t: Array) -> tuple[Array, Array, Array, Array]:
-    """`_position` and the velocities dp/dt (vx, vy) at the times t: (px, py, vx, vy), a velocity
-    constant in t (1, B, H, W)."""
-    px, py = _position(kind, terms, x, y, t)
-    if kind == "arc":
-        center, angle = terms
-        a = angle[None, :, 0]
-        return px, py, -a * (py - center[None, :, 1]), a * (px - center[None, :, 0])
-    _, linear, quadratic, cubic = terms
-    velocities = []
-    for axis in (0, 1):
-        velocity = linear[None, :, axis]
-        if quadratic is not None:
-            velocity = velocity + quadratic[None, :, axis] * (2.0 * t)
-        if cubic is not None:
-            velocity = velocity + cubic[None, :, axis] * (3.0 * t * t)
-        velocities.append(velocity)
-    return px, py, velocities[0], velocities[1]
-
-
 def _safe_hypot(a: Array, b: Array) -> Array:
     squared = a * a + b * b
     positive = squared > 0
@@ -157,7 +113,7 @@ def _splat(
     """The splats of every curve's points at `times` (K,) with `masses` (K,), one scatter-add for the
     K points: (B * (H + 2) * (W + 2), C + 1) sums of omega * [color, 1] on the image padded by a ring
     of one pixel, which catches the corners just outside the image (the caller crops it)."""
-    px, py, vx, vy = _point(kind, terms, x, y, times.reshape(-1, 1, 1, 1))
+    px, py, vx, vy = curve_point(kind, terms, x, y, times.reshape(-1, 1, 1, 1), jnp)
     points, batch, height, width = px.shape
     weight = jnp.where(moving[None], masses.reshape(-1, 1, 1, 1), 0.0)
     if paper:  # weight per pixel of path length: |dp| = |dp/dt| dt, with dt = 2 / count ~ 2 mass
@@ -182,16 +138,9 @@ def _splat(
 
 
 def _longest(kind: str, terms: tuple, x: Array, y: Array) -> float:
-    """Length in pixels of the longest curve, measured along a polyline of LENGTH_SEGMENTS pieces,
-    added one piece at a time in order, as the PyTorch backend does."""
-    terms = jax.lax.stop_gradient(terms)
-    length, previous = None, None
-    for time in length_times():
-        px, py = _position(kind, terms, x, y, jnp.full((1, 1, 1, 1), time, dtype=x.dtype))
-        if previous is not None:
-            piece = _safe_hypot(px - previous[0], py - previous[1])
-            length = piece if length is None else length + piece
-        previous = (px, py)
+    """Length in pixels of the longest curve (`polyline_length`; `jnp.hypot` was no faster here than
+    `_safe_hypot`, eagerly)."""
+    length = polyline_length(kind, jax.lax.stop_gradient(terms), x, y, jnp, _safe_hypot)
     try:
         return float(length.max())
     except jax.errors.ConcretizationTypeError as error:

@@ -20,11 +20,12 @@ from diffblur._scatter_options import (
     FILLS,
     MID_PREV_TIME,
     constant_masses,
+    curve_point,
     has_constant_parameters,
-    length_times,
     point_count,
     point_masses,
     point_times,
+    polyline_length,
     resolve_options,
     resolve_path,
     traced_count_message,
@@ -73,51 +74,6 @@ def _bezier_terms(degree: int, prev: Tensor, nxt: Tensor, mid: Tensor | None) ->
     return (None, half_difference - cubic, half_sum, cubic)
 
 
-def _position(kind: str, terms: tuple, x: Tensor, y: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
-    """Positions (px, py) at the times t (K, 1, 1, 1), (K, B, H, W) each.
-
-    x, y: (1, 1, H, W) pixel centres. kind "bezier": terms = (constant, linear, quadratic, cubic), each
-    (B, 2, H, W) or None; "arc": terms = (center, angle)."""
-    if kind == "arc":
-        center, angle = terms
-        cx, cy, a = center[None, :, 0], center[None, :, 1], angle[None, :, 0]
-        rx, ry = x - cx, y - cy
-        cos, sin = torch.cos(a * t), torch.sin(a * t)
-        return cx + cos * rx - sin * ry, cy + sin * rx + cos * ry
-    constant, linear, quadratic, cubic = terms
-    positions = []
-    for axis, start in ((0, x), (1, y)):
-        offset = linear[None, :, axis] * t
-        if quadratic is not None:
-            offset = offset + quadratic[None, :, axis] * (t * t)
-        if cubic is not None:
-            offset = offset + cubic[None, :, axis] * (t * t * t)
-        if constant is not None:
-            offset = offset + constant[None, :, axis]
-        positions.append(start + offset)
-    return positions[0], positions[1]
-
-
-def _point(kind: str, terms: tuple, x: Tensor, y: Tensor, t: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """`_position` and the velocities dp/dt (vx, vy) at the times t: (px, py, vx, vy), a velocity
-    constant in t (1, B, H, W)."""
-    px, py = _position(kind, terms, x, y, t)
-    if kind == "arc":
-        center, angle = terms
-        a = angle[None, :, 0]
-        return px, py, -a * (py - center[None, :, 1]), a * (px - center[None, :, 0])
-    _, linear, quadratic, cubic = terms
-    velocities = []
-    for axis in (0, 1):
-        velocity = linear[None, :, axis]
-        if quadratic is not None:
-            velocity = velocity + quadratic[None, :, axis] * (2.0 * t)
-        if cubic is not None:
-            velocity = velocity + cubic[None, :, axis] * (3.0 * t * t)
-        velocities.append(velocity)
-    return px, py, velocities[0], velocities[1]
-
-
 def _safe_hypot(a: Tensor, b: Tensor) -> Tensor:
     squared = a * a + b * b
     positive = squared > 0
@@ -140,7 +96,7 @@ def _splat(
     """The splats of every curve's points at `times` (K,) with `masses` (K,), one scatter-add for the
     K points: (B * (H + 2) * (W + 2), C + 1) sums of omega * [color, 1] on the image padded by a ring
     of one pixel, which catches the corners just outside the image (the caller crops it)."""
-    px, py, vx, vy = _point(kind, terms, x, y, times.reshape(-1, 1, 1, 1))
+    px, py, vx, vy = curve_point(kind, terms, x, y, times.reshape(-1, 1, 1, 1), torch)
     points, batch, height, width = px.shape
     weight = torch.where(moving[None], masses.reshape(-1, 1, 1, 1), 0.0)
     if paper:  # weight per pixel of path length: |dp| = |dp/dt| dt, with dt = 2 / count ~ 2 mass
@@ -171,19 +127,10 @@ def _constant_masses(window: ShutterWindow, samples: int) -> tuple[float, ...]:
 
 
 def _longest(kind: str, terms: tuple, x: Tensor, y: Tensor) -> float:
-    """Length in pixels of the longest curve, measured along a polyline of LENGTH_SEGMENTS pieces,
-    added one piece at a time: all LENGTH_SEGMENTS + 1 points at once took 5x longer at 720p. No
-    gradient flows here, so a piece is one `torch.hypot`, not `_safe_hypot`'s five ops (this function
-    took about half the time at 720p)."""
+    """Length in pixels of the longest curve (`polyline_length`). No gradient flows here, so a piece
+    is one `torch.hypot`, not `_safe_hypot`'s five ops (the measurement took half the time at 720p)."""
     with torch.no_grad():
-        length, previous = None, None
-        for time in length_times():
-            px, py = _position(kind, terms, x, y, torch.full((1, 1, 1, 1), time, dtype=x.dtype, device=x.device))
-            if previous is not None:
-                piece = torch.hypot(px - previous[0], py - previous[1])
-                length = piece if length is None else length + piece
-            previous = (px, py)
-        return float(length.max())
+        return float(polyline_length(kind, terms, x, y, torch, torch.hypot).max())
 
 
 def _upsample_rows(x: Tensor, size: int) -> Tensor:
