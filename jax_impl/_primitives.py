@@ -87,7 +87,13 @@ def _squared_length(vector: Array, axis: int) -> Array:
     longer than 256 px would square to infinity."""
     if vector.dtype in (jnp.float16, jnp.bfloat16):
         vector = vector.astype(jnp.float32)
-    return jnp.sum(vector * vector, axis=axis, keepdims=True)
+    # Component by component: XLA:CPU's reduce over a leading axis of size 2 took 10 ms at 1280x720,
+    # these adds 0.2 ms (same sums, same order).
+    components = [jax.lax.slice_in_dim(vector, i, i + 1, axis=axis) for i in range(vector.shape[axis])]
+    squared = components[0] * components[0]
+    for component in components[1:]:
+        squared = squared + component * component
+    return squared
 
 
 def _safe_length(vector: Array, axis: int = 1) -> Array:
