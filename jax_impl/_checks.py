@@ -45,30 +45,26 @@ def same_shape(name: str, x: jax.Array, reference_name: str, reference: jax.Arra
     same_dtype(name, x, reference_name, reference)
 
 
-def positive_values(name: str, x: jax.Array) -> jax.Array:
-    """Raise if any element is <= 0 or NaN: ValueError now, or EqxRuntimeError under jit.
+def data_check(x: jax.Array, bad: jax.Array, message: str) -> jax.Array:
+    """Raise ValueError(message) now if `bad`, or EqxRuntimeError at run time under jit.
 
-    Returns `x`, which under jit must be used in place of the input to keep the check alive."""
-    bad = jnp.logical_not(jnp.all(x > 0))
-    # Inside jit even a concrete x gives a traced `bad`: test that, not x.
+    Tests `bad`, not `x`: inside jit even a concrete x gives a traced `bad`. Returns `x`, which
+    under jit must be used in place of the input to keep the check alive."""
     if isinstance(bad, jax.core.Tracer):
-        return eqx.error_if(x, bad, checks.nonpositive_message(name))
+        return eqx.error_if(x, bad, message)
     if bool(bad):
-        raise ValueError(checks.nonpositive_message(name))
+        raise ValueError(message)
     return x
+
+
+def positive_values(name: str, x: jax.Array) -> jax.Array:
+    """Raise if any element is <= 0 or NaN (see `data_check`)."""
+    return data_check(x, jnp.logical_not(jnp.all(x > 0)), checks.nonpositive_message(name))
 
 
 def finite_values(name: str, x: jax.Array) -> jax.Array:
-    """Raise if any element is NaN or infinite: ValueError now, or EqxRuntimeError under jit.
-
-    Returns `x`, which under jit must be used in place of the input to keep the check alive."""
-    bad = jnp.logical_not(jnp.all(jnp.isfinite(x)))
-    # Inside jit even a concrete x gives a traced `bad`: test that, not x.
-    if isinstance(bad, jax.core.Tracer):
-        return eqx.error_if(x, bad, checks.nonfinite_message(name))
-    if bool(bad):
-        raise ValueError(checks.nonfinite_message(name))
-    return x
+    """Raise if any element is NaN or infinite (see `data_check`)."""
+    return data_check(x, jnp.logical_not(jnp.all(jnp.isfinite(x))), checks.nonfinite_message(name))
 
 
 def positive_scalar(name: str, value: object, like: jax.Array) -> float | jax.Array:

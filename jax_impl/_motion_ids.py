@@ -4,22 +4,12 @@ The formulas are in `diffblur.motion_ids`, the NumPy reference."""
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
 from diffblur import motion_ids
 from jax_impl import _checks
-
-
-def _checked(x: jax.Array, bad: jax.Array, message: str) -> jax.Array:
-    """Raise `message` where `bad` holds: ValueError now, or EqxRuntimeError under jit."""
-    if isinstance(bad, jax.core.Tracer):
-        return eqx.error_if(x, bad, message)
-    if bool(bad):
-        raise ValueError(message)
-    return x
 
 
 def velocity_from_motion_ids(
@@ -66,7 +56,7 @@ def velocity_from_motion_ids(
     )
     batch, _, height, width = ids.shape
     palette_size, dims = palette.shape[1], palette.shape[2]
-    ids = _checked(ids, jnp.logical_not(jnp.all((ids >= 0) & (ids < palette_size))), motion_ids.id_range_message(palette_size))
+    ids = _checks.data_check(ids, jnp.logical_not(jnp.all((ids >= 0) & (ids < palette_size))), motion_ids.id_range_message(palette_size))
     entry = jax.vmap(lambda p, i: p[i])(palette, ids.reshape(batch, height * width))  # (B, H W, D)
     entry = jnp.transpose(entry, (0, 2, 1)).reshape(batch, dims, height, width)
     if dims == 2:
@@ -74,7 +64,7 @@ def velocity_from_motion_ids(
     _checks.same_dtype("depth", depth, "palette", palette)
     depth = _checks.positive_values("depth", depth)
     vx, vy, vz = entry[:, 0:1], entry[:, 1:2], entry[:, 2:3]
-    vz = _checked(vz, jnp.logical_not(jnp.all(jnp.abs(vz) < depth)), motion_ids.world_velocity_message())
+    vz = _checks.data_check(vz, jnp.logical_not(jnp.all(jnp.abs(vz) < depth)), motion_ids.world_velocity_message())
     x = jnp.arange(width, dtype=palette.dtype).reshape(1, 1, 1, width)
     y = jnp.arange(height, dtype=palette.dtype).reshape(1, 1, height, 1)
     denominator = depth * depth - vz * vz

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import functools
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -44,28 +43,6 @@ from jax_impl._sampling import pixel_grid, position_dtype, widen_window
 _CHUNK_PIXEL_POINTS = 1 << 18
 
 
-def _data_check(x: Array, bad: Array, message: str) -> Array:
-    """Raise ValueError(message) now if `bad`, or EqxRuntimeError at run time under jit.
-
-    Tests `bad`, not `x`: a concrete array closed over by a jitted function gives a traced `bad`.
-    Returns `x`, which under jit must be used in place of the input to keep the check alive."""
-    if isinstance(bad, jax.core.Tracer):
-        return eqx.error_if(x, bad, message)
-    if bool(bad):
-        raise ValueError(message)
-    return x
-
-
-def _finite_values(name: str, x: Array) -> Array:
-    """Raise if any element is NaN or infinite (see `_data_check`)."""
-    return _data_check(x, jnp.logical_not(jnp.all(jnp.isfinite(x))), checks.nonfinite_message(name))
-
-
-def _positive_values(name: str, x: Array) -> Array:
-    """Raise if any element is <= 0 or NaN (see `_data_check`)."""
-    return _data_check(x, jnp.logical_not(jnp.all(x > 0)), checks.nonpositive_message(name))
-
-
 def _extent(value: object, like: Array) -> Array:
     """soft_z_extent: a number > 0 or a 0-d array > 0, as a 0-d array of like's dtype."""
     if isinstance(value, (jax.Array, np.ndarray)):
@@ -73,7 +50,7 @@ def _extent(value: object, like: Array) -> Array:
         if value.ndim != 0:
             raise ValueError(f"soft_z_extent must be a number or a 0-d array, got shape {tuple(value.shape)}")
         _checks.same_dtype("soft_z_extent", value, "depth", like)
-        return _positive_values("soft_z_extent", value)
+        return _checks.positive_values("soft_z_extent", value)
     return jnp.asarray(checks.require_positive_number("soft_z_extent", value), dtype=like.dtype)
 
 
@@ -315,8 +292,8 @@ def bezier_scatter(
     fill = checks.require_choice("fill", fill, FILLS)
     extent = _extent(soft_z_extent, depth)
     window = get_shutter(shutter)
-    depth = _finite_values("depth", _positive_values("depth", depth))
-    given = {name: _finite_values(name, value) for name, value in given.items()}
+    depth = _checks.finite_values("depth", _checks.positive_values("depth", depth))
+    given = {name: _checks.finite_values(name, value) for name, value in given.items()}
 
     if fused is not False:
         from diffblur._fused import use_fused
