@@ -323,7 +323,33 @@ def _pairs(color: np.ndarray, velocity: np.ndarray, depth: np.ndarray) -> np.nda
     batch, channels, height, width = color.shape
     pairs = np.empty((batch, height, width, channels + 3, 2), dtype=color.dtype)
     _fill_pairs(color, velocity, depth, pairs)
-    return pairs.reshape(-1).view(np.uint64) if color.dtype == np.float32 else pairs.reshape(-1)
+    return _flat_pairs(pairs)
+
+
+@_jit
+def _fill_color_pairs(color, pairs):
+    """`_fill_pairs` for the colour alone: pairs (B, H, W, C, 2)."""
+    batch, channels, height, width = color.shape
+    for row in numba.prange(batch * height):
+        b = row // height
+        y = row % height
+        for x in range(width):
+            right = min(x + 1, width - 1)
+            for c in range(channels):
+                pairs[b, y, x, c, 0] = color[b, c, y, x]
+                pairs[b, y, x, c, 1] = color[b, c, y, right]
+
+
+def _flat_pairs(pairs: np.ndarray) -> np.ndarray:
+    """A pairs buffer, flat: uint64 (one per pair) for float32, float64 (two per pair) else."""
+    return pairs.reshape(-1).view(np.uint64) if pairs.dtype == np.float32 else pairs.reshape(-1)
+
+
+def _color_pairs(color: np.ndarray) -> np.ndarray:
+    batch, channels, height, width = color.shape
+    pairs = np.empty((batch, height, width, channels, 2), dtype=color.dtype)
+    _fill_color_pairs(color, pairs)
+    return _flat_pairs(pairs)
 
 
 @_inline
@@ -686,6 +712,7 @@ def _reconstruct_backward(
 #: float64 one, c float64 (chunks, C, row), with row = _BLOCK + _SCRATCH_GAP.
 _FORWARD_SCRATCH = "f" * 10 + "c" + "ii" + "fff"
 _BACKWARD_SCRATCH = "f" * 10 + "cc" + "ii" + "f" * 20
+_GATHER_SCRATCH = "ff" + "ii" + "ff" + "c"
 
 
 # Each scratch row is followed by 1 KiB that no thread touches. Side by side, one thread's row next to
@@ -830,33 +857,57 @@ def _channels_last(color, buffers):
 
 
 @_jit
-def _gather_forward(buffers, velocity, counts, masses, tile, order, chunks, out):
-    batch, height, width, channels = buffers.shape
+def _gather_forward(pairs, velocity, counts, masses, tile, order, out, vx_s, vy_s, index_s, below_s, fx_s, fy_s, total_s):
+    """`_reconstruct_forward`'s layout for the gather: pairs of the colour (`_color_pairs`), blocks
+    of one row as vectors (per tap index, one loop places the taps, one per channel reads them), the
+    *_s scratch one block per chunk: (chunks, >= _BLOCK), total_s (chunks, C, >= _BLOCK)."""
+    batch, channels, height, width = out.shape
+    chunks = vx_s.shape[0]
     rows = batch * height
+    last_x = width - 1.0
+    last_y = height - 1.0
     for chunk in numba.prange(chunks):
-        total = np.empty(channels)
         for i in range(chunk * rows // chunks, (chunk + 1) * rows // chunks):
             row = order[i]
             b = row // height
             y = row % height
-            for x in range(width):
-                count = counts[b, y // tile, x // tile]
-                if count == 0:
-                    for c in range(channels):
-                        out[b, c, y, x] = buffers[b, y, x, c]
+            image_start = b * height * width * channels
+            start = 0
+            while start < width:
+                end = _block_end(counts, b, y // tile, start, width, tile)
+                size = end - start
+                count = counts[b, y // tile, start // tile]
+                if count == 0:  # the image
+                    for x in range(start, end):
+                        for c in range(channels):
+                            out[b, c, y, x] = _pair(pairs, image_start + (y * width + x) * channels + c)[0]
+                    start = end
                     continue
-                vx = np.float64(velocity[b, 0, y, x])
-                vy = np.float64(velocity[b, 1, y, x])
-                for c in range(channels):
-                    total[c] = 0.0
+                for p in range(size):
+                    vx_s[chunk, p] = velocity[b, 0, y, start + p]
+                    vy_s[chunk, p] = velocity[b, 1, y, start + p]
+                    for c in range(channels):
+                        total_s[chunk, c, p] = 0.0
                 for k in range(count):
                     t = (2.0 * k + 1.0) / count - 1.0
                     mass = np.float64(masses[count, k])
-                    column0, column1, row0, row1, fx, fy, _, _ = _bilinear_setup(x - t * vx, y - t * vy, width, height)
+                    for p in range(size):  # vectorized: the taps, clamped as `_bilinear_setup`
+                        cx = min(max((start + p) - t * vx_s[chunk, p], 0.0), last_x)
+                        cy = min(max(y - t * vy_s[chunk, p], 0.0), last_y)
+                        column = np.int64(cx)
+                        row0 = np.int64(cy)
+                        index_s[chunk, p] = image_start + (row0 * width + column) * channels
+                        below_s[chunk, p] = width * channels if row0 < height - 1 else 0
+                        fx_s[chunk, p] = cx - column
+                        fy_s[chunk, p] = cy - row0
                     for c in range(channels):
-                        total[c] += mass * _read(buffers, b, c, row0, row1, column0, column1, fx, fy)
-                for c in range(channels):
-                    out[b, c, y, x] = total[c]
+                        for p in range(size):  # vectorized: gathers
+                            read = _pair_read(pairs, index_s[chunk, p] + c, below_s[chunk, p], fx_s[chunk, p], fy_s[chunk, p])
+                            total_s[chunk, c, p] += mass * read
+                for p in range(size):
+                    for c in range(channels):
+                        out[b, c, y, start + p] = total_s[chunk, c, p]
+                start = end
 
 
 @_jit
@@ -964,9 +1015,10 @@ def gather_forward(
     color, velocity, masses = read_only(color, velocity, masses)
     batch, _, height, width = color.shape
     out = np.empty_like(color)
-    chunks = min(batch * height, 4 * _threads())
     counts = _gather_counts(velocity, samples, classes, still, tile)
-    _gather_forward(_channels_last_buffers(color), velocity, counts, masses, max(height, width) if classes is None else int(tile), row_order(batch * height), chunks, out)
+    tile = max(height, width) if classes is None else int(tile)
+    scratch = _scratch(_GATHER_SCRATCH, min(batch * height, _threads()), color.shape[1])
+    _gather_forward(_color_pairs(color), velocity, counts, masses, tile, row_order(batch * height), out, *scratch)
     return out
 
 
