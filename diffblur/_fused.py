@@ -183,50 +183,6 @@ def _cylinder_grad(distance, speed, inverse, grad):
     return d_q * inverse, d_speed
 
 
-@_inline
-def _bilinear_setup(px, py, width, height):
-    """Corners, fractions and whether the clamp passes the gradient, as `_sampling.sample`."""
-    inside_x = px >= 0.0 and px <= width - 1.0
-    inside_y = py >= 0.0 and py <= height - 1.0
-    cx = 0.0 if px < 0.0 else (width - 1.0 if px > width - 1.0 else px)
-    cy = 0.0 if py < 0.0 else (height - 1.0 if py > height - 1.0 else py)
-    x0 = math.floor(cx)
-    y0 = math.floor(cy)
-    column0 = min(int(x0), width - 1)
-    row0 = min(int(y0), height - 1)
-    return column0, min(column0 + 1, width - 1), row0, min(row0 + 1, height - 1), cx - x0, cy - y0, inside_x, inside_y
-
-
-@_inline
-def _read(buffers, b, channel, row0, row1, column0, column1, fx, fy):
-    """Channel `channel` of the (B, H, W, K) buffers, bilinearly, as `_sampling.sample` (a + f (b - a))."""
-    top_left = np.float64(buffers[b, row0, column0, channel])
-    bottom_left = np.float64(buffers[b, row1, column0, channel])
-    top = top_left + fx * (buffers[b, row0, column1, channel] - top_left)
-    bottom = bottom_left + fx * (buffers[b, row1, column1, channel] - bottom_left)
-    return top + fy * (bottom - top)
-
-
-@_inline
-def _read_slopes(buffers, b, channel, row0, row1, column0, column1, fx, fy):
-    """d read / d fx and d read / d fy of `_read`, and the read itself."""
-    top_left = np.float64(buffers[b, row0, column0, channel])
-    top_right = np.float64(buffers[b, row0, column1, channel])
-    bottom_left = np.float64(buffers[b, row1, column0, channel])
-    bottom_right = np.float64(buffers[b, row1, column1, channel])
-    top = top_left + fx * (top_right - top_left)
-    bottom = bottom_left + fx * (bottom_right - bottom_left)
-    return (1.0 - fy) * (top_right - top_left) + fy * (bottom_right - bottom_left), bottom - top, top + fy * (bottom - top)
-
-
-@_inline
-def _scatter(grads, b, channel, row0, row1, column0, column1, fx, fy, grad):
-    grads[b, row0, column0, channel] += grad * (1.0 - fx) * (1.0 - fy)
-    grads[b, row0, column1, channel] += grad * fx * (1.0 - fy)
-    grads[b, row1, column0, channel] += grad * (1.0 - fx) * fy
-    grads[b, row1, column1, channel] += grad * fx * fy
-
-
 @_jit
 def _deinterleave_sum(grads, out):
     """Sum the (chunks, B, H, W, K) per-chunk gradient buffers into out (B, K, H, W)."""
@@ -387,7 +343,8 @@ def _pixel_state(velocity, depth, neighbors, jitter, b, jb, y, x, tile, min_radi
 
 @_inline
 def _pair_read(pairs, index, below, fx, fy):
-    """Bilinear read of pair `index` (top row) and `index + below` (bottom row), as `_read`."""
+    """Bilinear read of pair `index` (top row) and `index + below` (bottom row), in float64, as
+    `_sampling.sample` computes it (a + f (b - a), the columns first)."""
     top_left, top_right = _pair(pairs, index)
     bottom_left, bottom_right = _pair(pairs, index + below)
     top = top_left + fx * (top_right - top_left)
@@ -446,7 +403,7 @@ def _reconstruct_forward(
                         dx = vx_s[chunk, p] if own != 0 else nx_s[chunk, p]
                         dy = vy_s[chunk, p] if own != 0 else ny_s[chunk, p]
                         speed = length_x_s[chunk, p] if own != 0 else speed_n_s[chunk, p]
-                        # `_bilinear_setup`'s clamp; a clamped position is >= 0, so int() floors it.
+                        # `_sampling.sample`'s clamp; a clamped position is >= 0, so int() floors it.
                         cx = min(max((start + p) + dx * t, 0.0), last_x)
                         cy = min(max(y + dy * t, 0.0), last_y)
                         column = np.int64(cx)
@@ -489,7 +446,7 @@ def _reconstruct_forward(
 
 @_inline
 def _pair_read_slopes(pairs, index, below, fx, fy):
-    """d read / d fx, d read / d fy and the read of `_pair_read`, as `_read_slopes`."""
+    """d read / d fx, d read / d fy and the read of `_pair_read`."""
     top_left, top_right = _pair(pairs, index)
     bottom_left, bottom_right = _pair(pairs, index + below)
     top = top_left + fx * (top_right - top_left)
@@ -499,7 +456,8 @@ def _pair_read_slopes(pairs, index, below, fx, fy):
 
 @_inline
 def _scatter_chunk(grads, chunk, b, channel, row0, row1, column0, column1, fx, fy, grad):
-    """`_scatter` into chunk `chunk` of grads, indexed rather than sliced (a slice is an alias)."""
+    """Add `grad` to chunk `chunk` of grads (chunks, B, H, W, K) at the 4 corners of a bilinear read,
+    each with its weight; indexed rather than sliced (a slice is an alias)."""
     grads[chunk, b, row0, column0, channel] += grad * (1.0 - fx) * (1.0 - fy)
     grads[chunk, b, row0, column1, channel] += grad * fx * (1.0 - fy)
     grads[chunk, b, row1, column0, channel] += grad * (1.0 - fx) * fy
@@ -713,6 +671,7 @@ def _reconstruct_backward(
 _FORWARD_SCRATCH = "f" * 10 + "c" + "ii" + "fff"
 _BACKWARD_SCRATCH = "f" * 10 + "cc" + "ii" + "f" * 20
 _GATHER_SCRATCH = "ff" + "ii" + "ff" + "c"
+_GATHER_BACKWARD_SCRATCH = "ff" + "ii" + "f" * 9 + "c"
 
 
 # Each scratch row is followed by 1 KiB that no thread touches. Side by side, one thread's row next to
@@ -845,18 +804,6 @@ def gather_mass_table(window: Any, samples: int, classes: tuple[int, ...], xp: A
 
 
 @_jit
-def _channels_last(color, buffers):
-    """(B, C, H, W) -> buffers (B, H, W, C): a tap's reads of every channel sit together."""
-    batch, channels, height, width = color.shape
-    for row in numba.prange(batch * height):
-        b = row // height
-        y = row % height
-        for x in range(width):
-            for c in range(channels):
-                buffers[b, y, x, c] = color[b, c, y, x]
-
-
-@_jit
 def _gather_forward(pairs, velocity, counts, masses, tile, order, out, vx_s, vy_s, index_s, below_s, fx_s, fy_s, total_s):
     """`_reconstruct_forward`'s layout for the gather: pairs of the colour (`_color_pairs`), blocks
     of one row as vectors (per tap index, one loop places the taps, one per channel reads them), the
@@ -891,7 +838,7 @@ def _gather_forward(pairs, velocity, counts, masses, tile, order, out, vx_s, vy_
                 for k in range(count):
                     t = (2.0 * k + 1.0) / count - 1.0
                     mass = np.float64(masses[count, k])
-                    for p in range(size):  # vectorized: the taps, clamped as `_bilinear_setup`
+                    for p in range(size):  # vectorized: the taps, clamped as in `_reconstruct_forward`
                         cx = min(max((start + p) - t * vx_s[chunk, p], 0.0), last_x)
                         cy = min(max(y - t * vy_s[chunk, p], 0.0), last_y)
                         column = np.int64(cx)
@@ -911,62 +858,96 @@ def _gather_forward(pairs, velocity, counts, masses, tile, order, out, vx_s, vy_
 
 
 @_jit
-def _gather_backward(buffers, velocity, counts, masses, tile, order, grad_out, grads, grad_velocity, grad_masses):
-    """grads: (chunks, B, H, W, C) zeros, one per chunk of rows; grad_velocity (B, 2, H, W) (each
-    pixel writes its own); grad_masses: (chunks, S + 1, S) zeros."""
-    batch, height, width, channels = buffers.shape
+def _gather_backward(
+    pairs, velocity, counts, masses, tile, order, grad_out, grads, grad_velocity, grad_masses,
+    vx_s, vy_s, column_s, row_s, fx_s, fy_s, inside_x_s, inside_y_s, g_fx_s, g_fy_s, g_mass_s, g_vx_s, g_vy_s, g_s,
+):
+    """`_gather_forward`'s layout for its backward: per tap index, one vector loop places the taps,
+    one per channel reads them with their slopes, then a scalar loop scatters the colour's gradient
+    to the 4 pixels each tap read (lanes may collide). grads: (chunks, B, H, W, C) zeros, one per
+    chunk of rows; grad_velocity (B, 2, H, W) (each pixel writes its own); grad_masses: (chunks,
+    S + 1, S) zeros; *_s scratch (chunks, >= _BLOCK), g_s (chunks, C, >= _BLOCK)."""
+    batch, height, width, channels = grads.shape[1:]
     chunks = grads.shape[0]
     rows = batch * height
+    last_x = width - 1.0
+    last_y = height - 1.0
     for chunk in numba.prange(chunks):
-        mine = grads[chunk]
         # Accumulated in the thread's own memory: written per tap, grad_masses' rows lie side by side.
         g_masses = np.zeros(grad_masses.shape[1:])
         for i in range(chunk * rows // chunks, (chunk + 1) * rows // chunks):
             row = order[i]
             b = row // height
             y = row % height
-            for x in range(width):
-                count = counts[b, y // tile, x // tile]
-                if count == 0:
-                    for c in range(channels):
-                        mine[b, y, x, c] += grad_out[b, c, y, x]
-                    grad_velocity[b, 0, y, x] = 0.0
-                    grad_velocity[b, 1, y, x] = 0.0
+            image_start = b * height * width * channels
+            start = 0
+            while start < width:
+                end = _block_end(counts, b, y // tile, start, width, tile)
+                size = end - start
+                count = counts[b, y // tile, start // tile]
+                if count == 0:  # out = C[X]
+                    for x in range(start, end):
+                        for c in range(channels):
+                            grads[chunk, b, y, x, c] += grad_out[b, c, y, x]
+                        grad_velocity[b, 0, y, x] = 0.0
+                        grad_velocity[b, 1, y, x] = 0.0
+                    start = end
                     continue
-                vx = np.float64(velocity[b, 0, y, x])
-                vy = np.float64(velocity[b, 1, y, x])
-                g_vx = 0.0
-                g_vy = 0.0
+                for p in range(size):
+                    vx_s[chunk, p] = velocity[b, 0, y, start + p]
+                    vy_s[chunk, p] = velocity[b, 1, y, start + p]
+                    g_vx_s[chunk, p] = 0.0
+                    g_vy_s[chunk, p] = 0.0
+                    for c in range(channels):
+                        g_s[chunk, c, p] = grad_out[b, c, y, start + p]
                 for k in range(count):
                     t = (2.0 * k + 1.0) / count - 1.0
                     mass = np.float64(masses[count, k])
-                    column0, column1, row0, row1, fx, fy, inside_x, inside_y = _bilinear_setup(x - t * vx, y - t * vy, width, height)
-                    g_fx = 0.0
-                    g_fy = 0.0
-                    g_mass = 0.0
+                    for p in range(size):  # vectorized: the taps, clamped as in `_reconstruct_forward`
+                        px = (start + p) - t * vx_s[chunk, p]
+                        py = y - t * vy_s[chunk, p]
+                        cx = min(max(px, 0.0), last_x)
+                        cy = min(max(py, 0.0), last_y)
+                        column = np.int64(cx)
+                        row0 = np.int64(cy)
+                        column_s[chunk, p] = column
+                        row_s[chunk, p] = row0
+                        fx_s[chunk, p] = cx - column
+                        fy_s[chunk, p] = cy - row0
+                        # The clamp at the border passes no gradient to the tap position X - t V.
+                        inside_x_s[chunk, p] = 1.0 if (px >= 0.0) & (px <= last_x) else 0.0
+                        inside_y_s[chunk, p] = 1.0 if (py >= 0.0) & (py <= last_y) else 0.0
+                        g_fx_s[chunk, p] = 0.0
+                        g_fy_s[chunk, p] = 0.0
+                        g_mass_s[chunk, p] = 0.0
                     for c in range(channels):
-                        g = np.float64(grad_out[b, c, y, x])
-                        slope_x, slope_y, c_y = _read_slopes(buffers, b, c, row0, row1, column0, column1, fx, fy)
-                        g_mass += g * c_y
-                        _scatter(mine, b, c, row0, row1, column0, column1, fx, fy, g * mass)
-                        g_fx += g * slope_x
-                        g_fy += g * slope_y
+                        for p in range(size):  # vectorized: the colours read and their slopes
+                            row0 = row_s[chunk, p]
+                            index = image_start + (row0 * width + column_s[chunk, p]) * channels + c
+                            below = width * channels if row0 < height - 1 else 0
+                            slope_x, slope_y, c_y = _pair_read_slopes(pairs, index, below, fx_s[chunk, p], fy_s[chunk, p])
+                            g = g_s[chunk, c, p]
+                            g_mass_s[chunk, p] += g * c_y
+                            g_fx_s[chunk, p] += g * slope_x
+                            g_fy_s[chunk, p] += g * slope_y
+                    g_mass = 0.0
+                    for p in range(size):
+                        g_mass += g_mass_s[chunk, p]
+                        g_vx_s[chunk, p] -= mass * g_fx_s[chunk, p] * t * inside_x_s[chunk, p]
+                        g_vy_s[chunk, p] -= mass * g_fy_s[chunk, p] * t * inside_y_s[chunk, p]
                     g_masses[count, k] += g_mass
-                    # The tap position is X - t V: the clamp at the border passes no gradient.
-                    if inside_x:
-                        g_vx -= mass * g_fx * t
-                    if inside_y:
-                        g_vy -= mass * g_fy * t
-                grad_velocity[b, 0, y, x] = g_vx
-                grad_velocity[b, 1, y, x] = g_vy
+                    for p in range(size):  # scalar: the 4 pixels each tap read
+                        row0 = row_s[chunk, p]
+                        column = column_s[chunk, p]
+                        row1 = min(row0 + 1, height - 1)
+                        column1 = min(column + 1, width - 1)
+                        for c in range(channels):
+                            _scatter_chunk(grads, chunk, b, c, row0, row1, column, column1, fx_s[chunk, p], fy_s[chunk, p], g_s[chunk, c, p] * mass)
+                for p in range(size):
+                    grad_velocity[b, 0, y, start + p] = g_vx_s[chunk, p]
+                    grad_velocity[b, 1, y, start + p] = g_vy_s[chunk, p]
+                start = end
         grad_masses[chunk] = g_masses
-
-
-def _channels_last_buffers(color: np.ndarray) -> np.ndarray:
-    batch, channels, height, width = color.shape
-    buffers = np.empty((batch, height, width, channels), dtype=color.dtype)
-    _channels_last(color, buffers)
-    return buffers
 
 
 @_jit
@@ -1042,7 +1023,8 @@ def gather_backward(
     grad_masses = np.zeros((chunks, *masses.shape), dtype=masses.dtype)
     counts = _gather_counts(velocity, samples, classes, still, tile)
     tile = max(height, width) if classes is None else int(tile)
-    _gather_backward(_channels_last_buffers(color), velocity, counts, masses, tile, row_order(batch * height), grad_out, grads, grad_velocity, grad_masses)
+    scratch = _scratch(_GATHER_BACKWARD_SCRATCH, chunks, channels)
+    _gather_backward(_color_pairs(color), velocity, counts, masses, tile, row_order(batch * height), grad_out, grads, grad_velocity, grad_masses, *scratch)
     grad_color = np.empty_like(color)
     _deinterleave_sum(grads, grad_color)
     return grad_color, grad_velocity, grad_masses.sum(axis=0)
