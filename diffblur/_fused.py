@@ -859,16 +859,17 @@ def _gather_forward(pairs, velocity, counts, masses, tile, order, out, vx_s, vy_
 
 @_jit
 def _gather_backward(
-    pairs, velocity, counts, masses, tile, order, grad_out, grads, grad_velocity, grad_masses,
+    pairs, velocity, counts, masses, tile, order, scatter_color, grad_out, grads, grad_velocity, grad_masses,
     vx_s, vy_s, column_s, row_s, fx_s, fy_s, inside_x_s, inside_y_s, g_fx_s, g_fy_s, g_mass_s, g_vx_s, g_vy_s, g_s,
 ):
     """`_gather_forward`'s layout for its backward: per tap index, one vector loop places the taps,
     one per channel reads them with their slopes, then a scalar loop scatters the colour's gradient
-    to the 4 pixels each tap read (lanes may collide). grads: (chunks, B, H, W, C) zeros, one per
+    to the 4 pixels each tap read (lanes may collide), if scatter_color is 1 (an int: see the note
+    on aliases above; with 0 grads stays incomplete). grads: (chunks, B, H, W, C) zeros, one per
     chunk of rows; grad_velocity (B, 2, H, W) (each pixel writes its own); grad_masses: (chunks,
     S + 1, S) zeros; *_s scratch (chunks, >= _BLOCK), g_s (chunks, C, >= _BLOCK)."""
-    batch, height, width, channels = grads.shape[1:]
-    chunks = grads.shape[0]
+    batch, _, height, width = velocity.shape
+    chunks, channels = grads.shape[0], grads.shape[4]
     rows = batch * height
     last_x = width - 1.0
     last_y = height - 1.0
@@ -887,8 +888,9 @@ def _gather_backward(
                 count = counts[b, y // tile, start // tile]
                 if count == 0:  # out = C[X]
                     for x in range(start, end):
-                        for c in range(channels):
-                            grads[chunk, b, y, x, c] += grad_out[b, c, y, x]
+                        if scatter_color != 0:
+                            for c in range(channels):
+                                grads[chunk, b, y, x, c] += grad_out[b, c, y, x]
                         grad_velocity[b, 0, y, x] = 0.0
                         grad_velocity[b, 1, y, x] = 0.0
                     start = end
@@ -936,13 +938,14 @@ def _gather_backward(
                         g_vx_s[chunk, p] -= mass * g_fx_s[chunk, p] * t * inside_x_s[chunk, p]
                         g_vy_s[chunk, p] -= mass * g_fy_s[chunk, p] * t * inside_y_s[chunk, p]
                     g_masses[count, k] += g_mass
-                    for p in range(size):  # scalar: the 4 pixels each tap read
-                        row0 = row_s[chunk, p]
-                        column = column_s[chunk, p]
-                        row1 = min(row0 + 1, height - 1)
-                        column1 = min(column + 1, width - 1)
-                        for c in range(channels):
-                            _scatter_chunk(grads, chunk, b, c, row0, row1, column, column1, fx_s[chunk, p], fy_s[chunk, p], g_s[chunk, c, p] * mass)
+                    if scatter_color != 0:
+                        for p in range(size):  # scalar: the 4 pixels each tap read
+                            row0 = row_s[chunk, p]
+                            column = column_s[chunk, p]
+                            row1 = min(row0 + 1, height - 1)
+                            column1 = min(column + 1, width - 1)
+                            for c in range(channels):
+                                _scatter_chunk(grads, chunk, b, c, row0, row1, column, column1, fx_s[chunk, p], fy_s[chunk, p], g_s[chunk, c, p] * mass)
                 for p in range(size):
                     grad_velocity[b, 0, y, start + p] = g_vx_s[chunk, p]
                     grad_velocity[b, 1, y, start + p] = g_vy_s[chunk, p]
@@ -1013,18 +1016,25 @@ def gather_backward(
     classes: tuple[int, ...] | None,
     still: float,
     tile: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Gradients of `gather_forward`'s image w.r.t. color, velocity and masses."""
+    needs: tuple[bool, bool, bool] = (True, True, True),
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    """Gradients of `gather_forward`'s image w.r.t. color, velocity and masses. needs: whether each
+    wants its gradient; None for the others. Without the colour's, the scatter to the taps' pixels
+    (most of the backward's time) is skipped."""
     color, velocity, masses, grad_out = read_only(color, velocity, masses, grad_out)
     batch, channels, height, width = color.shape
     chunks = min(_threads(), batch * height)
-    grads = np.zeros((chunks, batch, height, width, channels), dtype=color.dtype)
+    need_color, need_velocity, need_masses = (bool(need) for need in needs)
+    grads = np.zeros((chunks, batch, height, width, channels) if need_color else (chunks, batch, 1, 1, channels), dtype=color.dtype)
     grad_velocity = np.empty_like(velocity)
     grad_masses = np.zeros((chunks, *masses.shape), dtype=masses.dtype)
     counts = _gather_counts(velocity, samples, classes, still, tile)
     tile = max(height, width) if classes is None else int(tile)
     scratch = _scratch(_GATHER_BACKWARD_SCRATCH, chunks, channels)
-    _gather_backward(_color_pairs(color), velocity, counts, masses, tile, row_order(batch * height), grad_out, grads, grad_velocity, grad_masses, *scratch)
-    grad_color = np.empty_like(color)
-    _deinterleave_sum(grads, grad_color)
-    return grad_color, grad_velocity, grad_masses.sum(axis=0)
+    arrays = (_color_pairs(color), velocity, counts, masses, tile, row_order(batch * height), int(need_color))
+    _gather_backward(*arrays, grad_out, grads, grad_velocity, grad_masses, *scratch)
+    grad_color = None
+    if need_color:
+        grad_color = np.empty_like(color)
+        _deinterleave_sum(grads, grad_color)
+    return grad_color, grad_velocity if need_velocity else None, grad_masses.sum(axis=0) if need_masses else None

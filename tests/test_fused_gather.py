@@ -194,3 +194,19 @@ def test_kernel_tile_classes_are_the_shared_rule():
     got = _fused._gather_counts(velocity, 31, classes, STILL_SPEED, ADAPTIVE_TILE)
     assert set(np.unique(expected)) >= {0, 7, 15}
     np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize("wanted", [("velocity",), ("color",), ("color", "velocity")])
+def test_torch_backward_computes_only_the_gradients_asked_for(wanted):
+    """The kernel skips the colour's scatter when the colour needs no gradient (most of the
+    backward's time); the gradients asked for still match the tensor ops'."""
+    arrays = _scene()
+    results = []
+    for fused in (True, False):
+        tensors = {name: torch.tensor(a, requires_grad=name in wanted) for name, a in zip(("color", "velocity"), arrays[:2])}
+        out = torch_impl.gather_blur(tensors["color"], tensors["velocity"], fused=fused, **CASES["adaptive"])
+        grads = torch.autograd.grad(out, [tensors[name] for name in wanted], torch.tensor(arrays[2]))
+        results.append([g.numpy() for g in grads])
+    for name, fused_grad, pure_grad in zip(wanted, *results):
+        assert np.abs(pure_grad).max() > 0, name
+        np.testing.assert_allclose(fused_grad, pure_grad, rtol=1e-10, atol=1e-10, err_msg=name)

@@ -86,9 +86,9 @@ class _FusedGather(torch.autograd.Function):
     @once_differentiable
     def backward(ctx, grad_out):
         arrays = [_array(t) for t in ctx.saved_tensors]
-        grads = _fused.gather_backward(*arrays, _array(grad_out), **ctx.settings)
-        grad_color, grad_velocity, grad_masses = (torch.from_numpy(g) for g in grads)
-        return grad_color, grad_velocity, grad_masses, None
+        # Only the gradients asked for: fitting a velocity skips the colour's scatter.
+        grads = _fused.gather_backward(*arrays, _array(grad_out), needs=ctx.needs_input_grad[:3], **ctx.settings)
+        return (*(None if g is None else torch.from_numpy(g) for g in grads), None)
 
 
 def fused_gather(color: Tensor, velocity: Tensor, window, samples: int, classes: tuple[int, ...] | None, wide: torch.dtype) -> Tensor:
