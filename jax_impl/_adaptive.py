@@ -161,7 +161,8 @@ def adaptive_gather(color: Array, velocity: Array, classes: tuple[int, ...], win
     concrete = _concrete(speed)
     if concrete is None:
         counts = tile_sample_counts(speed, classes, STILL_SPEED, jnp)
-        full = {c: gather_blur(color, velocity, samples=c, shutter=window, sampling=sampling) for c in classes}
+        # fused=False: this is the tensor-op path (the fused kernel sizes the classes itself).
+        full = {c: gather_blur(color, velocity, samples=c, shutter=window, sampling=sampling, fused=False) for c in classes}
         return _select(color, full, _pixel_counts(counts, tile, height, width))
     found = _class_indices(tile_sample_counts(concrete, classes, STILL_SPEED, np), classes, tile, height, width, batch * height * width)
     if not found:

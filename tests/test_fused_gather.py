@@ -210,3 +210,18 @@ def test_torch_backward_computes_only_the_gradients_asked_for(wanted):
     for name, fused_grad, pure_grad in zip(wanted, *results):
         assert np.abs(pure_grad).max() > 0, name
         np.testing.assert_allclose(fused_grad, pure_grad, rtol=1e-10, atol=1e-10, err_msg=name)
+
+
+def test_jax_adaptive_tensor_ops_under_jit_stay_tensor_ops():
+    """adaptive=True, fused=False under jit (every class computed, then selected) must not call the
+    kernel: forward mode works there, and its tangent is the eager path's (classes compacted)."""
+    color, velocity, _ = (jnp.asarray(a) for a in _scene())
+
+    def blur(v):
+        return jax_impl.gather_blur(color, v, samples=15, adaptive=True, fused=False)
+
+    tangent_in = jnp.ones_like(velocity)
+    _, jitted = jax.jit(lambda v: jax.jvp(blur, (v,), (tangent_in,)))(velocity)
+    _, eager = jax.jvp(blur, (velocity,), (tangent_in,))
+    assert np.abs(np.asarray(eager)).max() > 0.1
+    np.testing.assert_allclose(np.asarray(jitted), np.asarray(eager), rtol=0, atol=1e-12)

@@ -101,7 +101,8 @@ def adaptive_gather(color: Tensor, velocity: Tensor, classes: tuple[int, ...], w
     speed = _safe_length(tile_max(velocity.detach(), tile))[:, 0]
     counts = tile_sample_counts(speed, classes, STILL_SPEED, torch)
     if torch.compiler.is_compiling():
-        full = {c: gather_blur(color, velocity, samples=c, shutter=window, sampling=sampling) for c in classes}
+        # fused=False: this is the tensor-op path (the fused kernel sizes the classes itself).
+        full = {c: gather_blur(color, velocity, samples=c, shutter=window, sampling=sampling, fused=False) for c in classes}
         return _select(color, full, _pixel_counts(counts, tile, height, width))
     color_table, velocity_table = _table(color), _table(velocity)
 
