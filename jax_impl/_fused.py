@@ -2,7 +2,7 @@
 `pure_callback`.
 
 The kernels run on the host, inside or outside `jax.jit`; reverse mode (grad, vjp) uses the
-kernels' backward. Forward mode (jvp, jacfwd, linearize) is not defined for a custom_vjp: such
+kernels' backward, for the differentiated inputs only (`symbolic_zeros=True` tells the rules which). Forward mode (jvp, jacfwd, linearize) is not defined for a custom_vjp: such
 callers pass fused=False. NeighborMax, the tile classes and the shutter's masses stay jax.numpy
 ops, so JAX carries the kernels' gradients w.r.t. NeighborMax and the masses back to the velocity
 and the shutter's parameters as on the pure path.
@@ -15,6 +15,7 @@ from functools import lru_cache, partial
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.custom_derivatives import SymbolicZero
 
 from diffblur import _fused
 from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED
@@ -51,7 +52,16 @@ def _host_forward(settings, color, velocity, depth, neighbors, counts, jitter):
 
 
 def _host_backward(settings, *arrays):
-    return _fused.reconstruct_backward(*(np.ascontiguousarray(a) for a in arrays), **dict(settings))
+    """The gradients asked for (settings' "needs"), in order, without the Nones."""
+    grads = _fused.reconstruct_backward(*(np.ascontiguousarray(a) for a in arrays), **dict(settings))
+    return tuple(g for g in grads if g is not None)
+
+
+def _needs(*primals) -> tuple:
+    """Which inputs are differentiated (`symbolic_zeros=True` hands the fwd rule each one with its
+    `perturbed` bit), as a residual: () for yes, None for no. The pytree's structure, not leaves,
+    carries the bits, so they stay Python bools under jit."""
+    return tuple(() if primal.perturbed else None for primal in primals)
 
 
 @partial(jax.custom_vjp, nondiff_argnums=(0,))
@@ -66,20 +76,29 @@ def _forward(settings, color, velocity, depth, neighbors, counts, jitter):
     return jax.pure_callback(_bound(_host_forward, settings), shapes, color, velocity, depth, neighbors, counts, jitter, vmap_method="sequential")
 
 
-def _fused_core_fwd(settings, color, velocity, depth, neighbors, counts, jitter):
-    out, weight = _forward(settings, color, velocity, depth, neighbors, counts, jitter)
-    return out, (color, velocity, depth, neighbors, counts, jitter, out, weight)
+def _fused_core_fwd(settings, *primals):
+    values = [primal.value for primal in primals]
+    out, weight = _forward(settings, *values)
+    color, velocity, depth, neighbors = primals[:4]
+    return out, (_needs(color, velocity, depth, neighbors), *values, out, weight)
 
 
 def _fused_core_bwd(settings, residuals, grad_out):
-    color, velocity, depth, neighbors, counts, jitter, _, _ = residuals
-    shapes = tuple(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in (color, velocity, depth, neighbors))
-    grads = jax.pure_callback(_bound(_host_backward, settings), shapes, *residuals, grad_out, vmap_method="sequential")
-    # counts are integers (float0 cotangent); jitter gets no gradient on the fused path.
-    return (*grads, np.zeros(counts.shape, dtype=jax.dtypes.float0), jnp.zeros_like(jitter))
+    (need_color, need_velocity, need_depth, need_neighbors), *arrays = residuals
+    color, velocity, depth, neighbors, counts, jitter, _, _ = arrays
+    # Only the gradients asked for (the scatter of the others is most of the kernel's time):
+    # fitting a velocity skips the colour's and depth's. NeighborMax's comes with the velocity's.
+    needs = (need_color is not None, need_velocity is not None or need_neighbors is not None, need_depth is not None)
+    if isinstance(grad_out, SymbolicZero) or not any(needs):
+        return (None,) * 6
+    wanted = [a for a, need in zip((color, velocity, depth, neighbors), (*needs, needs[1])) if need]
+    shapes = tuple(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in wanted)
+    grads = iter(jax.pure_callback(_bound(_host_backward, (*settings, ("needs", needs))), shapes, *arrays, grad_out, vmap_method="sequential"))
+    # counts (integers) and jitter (not differentiated on the fused path) get none.
+    return (*(next(grads) if need else None for need in (*needs, needs[1])), None, None)
 
 
-_fused_core.defvjp(_fused_core_fwd, _fused_core_bwd)
+_fused_core.defvjp(_fused_core_fwd, _fused_core_bwd, symbolic_zeros=True)
 
 
 def fused_reconstruct(color, velocity, depth, jitter, o):
@@ -98,7 +117,9 @@ def _host_gather_forward(settings, color, velocity, masses):
 
 
 def _host_gather_backward(settings, *arrays):
-    return _fused.gather_backward(*(np.ascontiguousarray(a) for a in arrays), **dict(settings))
+    """The gradients asked for (settings' "needs"), in order, without the Nones."""
+    grads = _fused.gather_backward(*(np.ascontiguousarray(a) for a in arrays), **dict(settings))
+    return tuple(g for g in grads if g is not None)
 
 
 @partial(jax.custom_vjp, nondiff_argnums=(0,))
@@ -107,16 +128,23 @@ def _fused_gather_core(settings, color, velocity, masses):
     return jax.pure_callback(_bound(_host_gather_forward, settings), shape, color, velocity, masses, vmap_method="sequential")
 
 
-def _fused_gather_core_fwd(settings, color, velocity, masses):
-    return _fused_gather_core(settings, color, velocity, masses), (color, velocity, masses)
+def _fused_gather_core_fwd(settings, *primals):
+    values = [primal.value for primal in primals]
+    return _fused_gather_core(settings, *values), (_needs(*primals), *values)
 
 
 def _fused_gather_core_bwd(settings, residuals, grad_out):
-    shapes = tuple(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in residuals)
-    return jax.pure_callback(_bound(_host_gather_backward, settings), shapes, *residuals, grad_out, vmap_method="sequential")
+    marks, *arrays = residuals
+    # Without the colour's gradient the kernel skips its scatter, most of the backward's time.
+    needs = tuple(mark is not None for mark in marks)
+    if isinstance(grad_out, SymbolicZero) or not any(needs):
+        return (None,) * 3
+    shapes = tuple(jax.ShapeDtypeStruct(a.shape, a.dtype) for a, need in zip(arrays, needs) if need)
+    grads = iter(jax.pure_callback(_bound(_host_gather_backward, (*settings, ("needs", needs))), shapes, *arrays, grad_out, vmap_method="sequential"))
+    return tuple(next(grads) if need else None for need in needs)
 
 
-_fused_gather_core.defvjp(_fused_gather_core_fwd, _fused_gather_core_bwd)
+_fused_gather_core.defvjp(_fused_gather_core_fwd, _fused_gather_core_bwd, symbolic_zeros=True)
 
 
 def fused_gather(color, velocity, window, samples: int, classes: tuple[int, ...] | None, wide):

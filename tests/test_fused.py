@@ -213,3 +213,24 @@ def test_torch_backward_computes_only_the_gradients_asked_for(wanted):
     for name, fused_grad, pure_grad in zip(wanted, *results):
         assert np.abs(pure_grad).max() > 0, name
         np.testing.assert_allclose(fused_grad, pure_grad, rtol=1e-10, atol=1e-10, err_msg=name)
+
+
+@pytest.mark.parametrize("wanted", [("velocity",), ("color",), ("depth",), ("color", "depth")])
+def test_jax_backward_computes_only_the_gradients_asked_for(wanted, monkeypatch):
+    """JAX's rule asks the kernel for the differentiated inputs' gradients only (symbolic zeros),
+    under jit too; they match the tensor ops'."""
+    arrays = _scene()
+    asked = []
+    backward = _fused.reconstruct_backward
+    monkeypatch.setattr(_fused, "reconstruct_backward", lambda *a, needs, **k: asked.append(needs) or backward(*a, needs=needs, **k))
+    names = ("color", "velocity", "depth")
+    argnums = tuple(names.index(name) for name in wanted)
+    results = []
+    for fused in (True, False):
+        cotangent = jnp.asarray(arrays[3])
+        loss = lambda c, v, d: jnp.sum(jax_impl.reconstruct(c, v, d, fused=fused, **CASES["default"]) * cotangent)  # noqa: E731
+        results.append(jax.jit(jax.grad(loss, argnums=argnums))(*(jnp.asarray(a) for a in arrays[:3])))
+    assert asked == [tuple(name in wanted for name in names)]
+    for name, fused_grad, pure_grad in zip(wanted, *results):
+        assert np.abs(pure_grad).max() > 0, name
+        np.testing.assert_allclose(fused_grad, pure_grad, rtol=1e-10, atol=1e-10, err_msg=name)

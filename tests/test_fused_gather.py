@@ -212,6 +212,28 @@ def test_torch_backward_computes_only_the_gradients_asked_for(wanted):
         np.testing.assert_allclose(fused_grad, pure_grad, rtol=1e-10, atol=1e-10, err_msg=name)
 
 
+@pytest.mark.parametrize("wanted", [("velocity",), ("color",)])
+def test_jax_backward_computes_only_the_gradients_asked_for(wanted, monkeypatch):
+    """JAX's rule asks the kernel for the differentiated inputs' gradients only (symbolic zeros),
+    under jit too; they match the tensor ops'."""
+    from diffblur import _fused
+
+    arrays = _scene()
+    asked = []
+    backward = _fused.gather_backward
+    monkeypatch.setattr(_fused, "gather_backward", lambda *a, needs, **k: asked.append(needs) or backward(*a, needs=needs, **k))
+    argnums = tuple(("color", "velocity").index(name) for name in wanted)
+    results = []
+    for fused in (True, False):
+        cotangent = jnp.asarray(arrays[2])
+        loss = lambda c, v: jnp.sum(jax_impl.gather_blur(c, v, fused=fused, **CASES["adaptive"]) * cotangent)  # noqa: E731
+        results.append(jax.jit(jax.grad(loss, argnums=argnums))(*(jnp.asarray(a) for a in arrays[:2])))
+    assert asked == [("color" in wanted, "velocity" in wanted, False)]
+    for name, fused_grad, pure_grad in zip(wanted, *results):
+        assert np.abs(pure_grad).max() > 0, name
+        np.testing.assert_allclose(fused_grad, pure_grad, rtol=1e-10, atol=1e-10, err_msg=name)
+
+
 def test_jax_adaptive_tensor_ops_under_jit_stay_tensor_ops():
     """adaptive=True, fused=False under jit (every class computed, then selected) must not call the
     kernel: forward mode works there, and its tangent is the eager path's (classes compacted)."""
