@@ -55,7 +55,8 @@ def _jax_pair(op, arrays, options, repeats):
 
     fn = getattr(jax_impl, op)
     forward = jax.jit(lambda *a: fn(*a, **options))
-    gradient = jax.jit(jax.grad(lambda *a: jnp.sum(fn(*a, **options)), argnums=tuple(range(len(arrays)))))
+    # value_and_grad: forward + backward (jax.grad alone may drop a forward whose value the gradient does not need).
+    gradient = jax.jit(jax.value_and_grad(lambda *a: jnp.sum(fn(*a, **options)), argnums=tuple(range(len(arrays)))))
     start = time.perf_counter()
     jax.block_until_ready(forward(*arrays))
     compile_ms = 1e3 * (time.perf_counter() - start)
