@@ -124,25 +124,32 @@ def _longest(kind: str, terms: tuple, x: Array, y: Array) -> float:
         raise ValueError(traced_count_message("jax.jit")) from error
 
 
-def _upsample_rows(x: Array, size: int) -> Array:
-    """Rows (axis -2) doubled by linear interpolation between centres (each new row 3/4 of its parent,
-    1/4 of the parent's neighbour on its side, the border repeated), cropped to `size`."""
-    before = jnp.concatenate([x[..., :1, :], x[..., :-1, :]], axis=-2)
-    after = jnp.concatenate([x[..., 1:, :], x[..., -1:, :]], axis=-2)
-    doubled = jnp.stack([0.75 * x + 0.25 * before, 0.75 * x + 0.25 * after], axis=-2)
-    return doubled.reshape(*x.shape[:-2], 2 * x.shape[-2], x.shape[-1])[..., :size, :]
+def _upsample_axis(x: Array, size: int, axis: int) -> Array:
+    """Axis `axis` (-2: rows, -1: columns) doubled by linear interpolation between centres (each new
+    element 3/4 of its parent, 1/4 of the parent's neighbour on its side, the border repeated),
+    cropped to `size`."""
+    n = x.shape[axis]
+    before = jnp.concatenate([jax.lax.slice_in_dim(x, 0, 1, axis=axis), jax.lax.slice_in_dim(x, 0, n - 1, axis=axis)], axis=axis)
+    after = jnp.concatenate([jax.lax.slice_in_dim(x, 1, n, axis=axis), jax.lax.slice_in_dim(x, n - 1, n, axis=axis)], axis=axis)
+    doubled = jnp.stack([0.75 * x + 0.25 * before, 0.75 * x + 0.25 * after], axis=axis % x.ndim + 1)
+    shape = list(x.shape)
+    shape[axis] = 2 * n
+    return jax.lax.slice_in_dim(doubled.reshape(shape), 0, size, axis=axis)
 
 
 def _upsample(x: Array, height: int, width: int) -> Array:
-    """Bilinear upsampling by 2 (half-pixel centres, border clamped), cropped to height x width."""
-    return jnp.swapaxes(_upsample_rows(jnp.swapaxes(_upsample_rows(x, height), -1, -2), width), -1, -2)
+    """Bilinear upsampling by 2 (half-pixel centres, border clamped), cropped to height x width. Each
+    axis in place: with `swapaxes` around a row pass, the push-pull fill's jitted value_and_grad took
+    2.8x as long at 1280x720 (XLA:CPU)."""
+    return _upsample_axis(_upsample_axis(x, height, -2), width, -1)
 
 
 def _pool(x: Array) -> Array:
-    """Sums over 2 x 2 blocks, an odd side padded with zeros."""
+    """Sums over 2 x 2 blocks, an odd side padded with zeros. Strided slices, not a reshape and a sum
+    over axes (3, 5): XLA:CPU ran that 2x slower (4.0 against 1.9 ms at 1280x720, value_and_grad)."""
     height, width = x.shape[-2:]
     x = jnp.pad(x, ((0, 0), (0, 0), (0, height % 2), (0, width % 2)))
-    return x.reshape(*x.shape[:2], x.shape[2] // 2, 2, x.shape[3] // 2, 2).sum(axis=(3, 5))
+    return (x[..., 0::2, 0::2] + x[..., 0::2, 1::2]) + (x[..., 1::2, 0::2] + x[..., 1::2, 1::2])
 
 
 def _still_fill(color: Array, still: Array) -> Array:

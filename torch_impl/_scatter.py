@@ -148,9 +148,9 @@ def _upsample(x: Tensor, height: int, width: int) -> Tensor:
 
 
 def _pool(x: Tensor) -> Tensor:
-    """Sums over 2 x 2 blocks, an odd side padded with zeros."""
+    """Sums over 2 x 2 blocks, an odd side padded with zeros, in JAX's order (see its `_pool`)."""
     x = F.pad(x, (0, x.shape[-1] % 2, 0, x.shape[-2] % 2))
-    return x.reshape(*x.shape[:2], x.shape[2] // 2, 2, x.shape[3] // 2, 2).sum(dim=(3, 5))
+    return (x[..., 0::2, 0::2] + x[..., 0::2, 1::2]) + (x[..., 1::2, 0::2] + x[..., 1::2, 1::2])
 
 
 def _still_fill(color: Tensor, still: Tensor) -> Tensor:
