@@ -139,8 +139,8 @@ def _upsample_axis(x: Array, size: int, axis: int) -> Array:
 
 def _upsample(x: Array, height: int, width: int) -> Array:
     """Bilinear upsampling by 2 (half-pixel centres, border clamped), cropped to height x width. Each
-    axis in place: with `swapaxes` around a row pass, the push-pull fill's jitted value_and_grad took
-    2.8x as long at 1280x720 (XLA:CPU)."""
+    axis in place: with `swapaxes` around a row pass the push-pull fill's jitted value_and_grad took
+    166 ms at 1280x720 instead of 110 (XLA:CPU)."""
     return _upsample_axis(_upsample_axis(x, height, -2), width, -1)
 
 
