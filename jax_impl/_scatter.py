@@ -406,6 +406,9 @@ def _scatter(
     else:
         accumulated = _splat_sums(color, depth, terms, masses, extent, moving, x, y, kind=kind, paper=paper)
     splatted, alpha = accumulated[:, :channels], accumulated[:, channels:]
+    # alpha copied per channel rather than broadcast: the gradient of a broadcast over the channel axis
+    # is a reduce over that leading axis, two of which took 72 ms of the backward at 1280x720 (XLA:CPU).
+    alpha = jnp.concatenate([alpha] * channels, axis=1)
     if background is None:
         background = color if fill == "color" else _still_fill(color, jnp.logical_not(moving)[:, None].astype(color.dtype))
     fill = jnp.where(moving[:, None], background, color).astype(wide)
