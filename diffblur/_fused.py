@@ -3,9 +3,9 @@
 A tensor framework runs `reconstruct` as ~200 full-resolution elementwise ops per tap; on a 2-core
 CPU that cannot reach the 100 ms target at 1280x720 (BENCHMARKS.md), and JAX's backward is
 dominated by the scatter-add that transposes the bilinear reads. These kernels do the whole filter
-in one parallel loop over pixels, and its hand-written backward in a second one. `reconstruct`'s two
-run a block of one row at a time as SIMD vectors (see "The forward runs a block" below). They take
-and return NumPy arrays, so both backends share them: `torch_impl._fused` wraps them in an
+in one parallel loop over pixels, and its hand-written backward in a second one. `reconstruct`'s and
+`gather_blur`'s run a block of one row at a time as SIMD vectors (see "The forward runs a block"
+below). They take and return NumPy arrays, so both backends share them: `torch_impl._fused` wraps them in an
 `autograd.Function`, `jax_impl._fused` in a `custom_vjp` over `pure_callback`.
 
 The pure tensor ops stay the reference: tests compare outputs and gradients of both paths. The
@@ -342,6 +342,20 @@ def _pixel_state(velocity, depth, neighbors, jitter, b, jb, y, x, tile, min_radi
 
 
 @_inline
+def _tap_corner(px, py, last_x, last_y):
+    """A tap at (px, py) clamped to the image as `_sampling.sample` does: its top-left pixel (a
+    clamped position is >= 0, so int() floors it), the fractions, and whether the clamp left each
+    coordinate alone (1.0) or cut its gradient (0.0)."""
+    cx = min(max(px, 0.0), last_x)
+    cy = min(max(py, 0.0), last_y)
+    column = np.int64(cx)
+    row0 = np.int64(cy)
+    inside_x = 1.0 if (px >= 0.0) & (px <= last_x) else 0.0
+    inside_y = 1.0 if (py >= 0.0) & (py <= last_y) else 0.0
+    return column, row0, cx - column, cy - row0, inside_x, inside_y
+
+
+@_inline
 def _pair_read(pairs, index, below, fx, fy):
     """Bilinear read of pair `index` (top row) and `index + below` (bottom row), in float64, as
     `_sampling.sample` computes it (a + f (b - a), the columns first)."""
@@ -403,13 +417,7 @@ def _reconstruct_forward(
                         dx = vx_s[chunk, p] if own != 0 else nx_s[chunk, p]
                         dy = vy_s[chunk, p] if own != 0 else ny_s[chunk, p]
                         speed = length_x_s[chunk, p] if own != 0 else speed_n_s[chunk, p]
-                        # `_sampling.sample`'s clamp; a clamped position is >= 0, so int() floors it.
-                        cx = min(max((start + p) + dx * t, 0.0), last_x)
-                        cy = min(max(y + dy * t, 0.0), last_y)
-                        column = np.int64(cx)
-                        row0 = np.int64(cy)
-                        fx = cx - column
-                        fy = cy - row0
+                        column, row0, fx, fy, _, _ = _tap_corner((start + p) + dx * t, y + dy * t, last_x, last_y)
                         index = image_start + (row0 * width + column) * stored
                         below = width * stored if row0 < height - 1 else 0
                         index_s[chunk, p] = index
@@ -538,17 +546,14 @@ def _reconstruct_backward(
                         t = -1.0 + (k + jitter_s[chunk, p] + 1.0) * step
                         px = (start + p) + (vx_s[chunk, p] if own != 0 else nx_s[chunk, p]) * t
                         py = y + (vy_s[chunk, p] if own != 0 else ny_s[chunk, p]) * t
-                        cx = min(max(px, 0.0), last_x)
-                        cy = min(max(py, 0.0), last_y)
-                        column = np.int64(cx)
-                        row0 = np.int64(cy)
+                        column, row0, fx, fy, inside_x, inside_y = _tap_corner(px, py, last_x, last_y)
                         column_s[chunk, p] = column
                         row_s[chunk, p] = row0
                         t_s[chunk, p] = t
-                        fx_s[chunk, p] = cx - column
-                        fy_s[chunk, p] = cy - row0
-                        inside_x_s[chunk, p] = 1.0 if (px >= 0.0) & (px <= last_x) else 0.0
-                        inside_y_s[chunk, p] = 1.0 if (py >= 0.0) & (py <= last_y) else 0.0
+                        fx_s[chunk, p] = fx
+                        fy_s[chunk, p] = fy
+                        inside_x_s[chunk, p] = inside_x
+                        inside_y_s[chunk, p] = inside_y
                         g_alpha_s[chunk, p] = 0.0
                         slope_x_s[chunk, p] = 0.0
                         slope_y_s[chunk, p] = 0.0
@@ -838,15 +843,12 @@ def _gather_forward(pairs, velocity, counts, masses, tile, order, out, vx_s, vy_
                 for k in range(count):
                     t = (2.0 * k + 1.0) / count - 1.0
                     mass = np.float64(masses[count, k])
-                    for p in range(size):  # vectorized: the taps, clamped as in `_reconstruct_forward`
-                        cx = min(max((start + p) - t * vx_s[chunk, p], 0.0), last_x)
-                        cy = min(max(y - t * vy_s[chunk, p], 0.0), last_y)
-                        column = np.int64(cx)
-                        row0 = np.int64(cy)
+                    for p in range(size):  # vectorized: the taps
+                        column, row0, fx, fy, _, _ = _tap_corner((start + p) - t * vx_s[chunk, p], y - t * vy_s[chunk, p], last_x, last_y)
                         index_s[chunk, p] = image_start + (row0 * width + column) * channels
                         below_s[chunk, p] = width * channels if row0 < height - 1 else 0
-                        fx_s[chunk, p] = cx - column
-                        fy_s[chunk, p] = cy - row0
+                        fx_s[chunk, p] = fx
+                        fy_s[chunk, p] = fy
                     for c in range(channels):
                         for p in range(size):  # vectorized: gathers
                             read = _pair_read(pairs, index_s[chunk, p] + c, below_s[chunk, p], fx_s[chunk, p], fy_s[chunk, p])
@@ -905,20 +907,15 @@ def _gather_backward(
                 for k in range(count):
                     t = (2.0 * k + 1.0) / count - 1.0
                     mass = np.float64(masses[count, k])
-                    for p in range(size):  # vectorized: the taps, clamped as in `_reconstruct_forward`
-                        px = (start + p) - t * vx_s[chunk, p]
-                        py = y - t * vy_s[chunk, p]
-                        cx = min(max(px, 0.0), last_x)
-                        cy = min(max(py, 0.0), last_y)
-                        column = np.int64(cx)
-                        row0 = np.int64(cy)
+                    for p in range(size):  # vectorized: the taps
+                        # The clamp at the border passes no gradient to the tap position X - t V.
+                        column, row0, fx, fy, inside_x, inside_y = _tap_corner((start + p) - t * vx_s[chunk, p], y - t * vy_s[chunk, p], last_x, last_y)
                         column_s[chunk, p] = column
                         row_s[chunk, p] = row0
-                        fx_s[chunk, p] = cx - column
-                        fy_s[chunk, p] = cy - row0
-                        # The clamp at the border passes no gradient to the tap position X - t V.
-                        inside_x_s[chunk, p] = 1.0 if (px >= 0.0) & (px <= last_x) else 0.0
-                        inside_y_s[chunk, p] = 1.0 if (py >= 0.0) & (py <= last_y) else 0.0
+                        fx_s[chunk, p] = fx
+                        fy_s[chunk, p] = fy
+                        inside_x_s[chunk, p] = inside_x
+                        inside_y_s[chunk, p] = inside_y
                         g_fx_s[chunk, p] = 0.0
                         g_fy_s[chunk, p] = 0.0
                         g_mass_s[chunk, p] = 0.0
