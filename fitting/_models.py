@@ -84,10 +84,40 @@ def _blur(ctx: Context, velocity: Any, shutter: Any = None) -> Any:
     fused = False if ctx.be.name == "jax" and o.get("jac", "fwd") == "fwd" else None
     if o["method"] == "gather":
         return ctx.be.ops.gather_blur(ctx.color, velocity, samples=o["samples"], shutter=shutter, fused=fused)
+    if o["method"] == "scatter":
+        # Seed 003's scatter of linear motion (offsets -V, +V) with the user's shutter, coverage
+        # normalisation and the push-pull fill: the blur that spreads an object over the pixels it
+        # passes, which a gather (a pixel reads along its own velocity only) cannot.
+        return ctx.be.ops.bezier_scatter(ctx.color, ctx.depth, -velocity, velocity, degree=1, samples=o["scatter_samples"], shutter=shutter, fused=fused)
     # Seed 000's taps span S / (S + 1) of the exposure: scale the velocity so the blur spans all of it
     # and the parameters are the scene's (see recover's docstring).
     span = (o["samples"] + 1.0) / o["samples"]
     return ctx.be.ops.reconstruct(ctx.color, velocity * span, ctx.depth, samples=o["samples"], max_radius=o["max_radius"], shutter=shutter, fused=fused)
+
+
+#: `covered`: a moving pixel counts as shown by the sharp frame where its paths cover at least this
+#: fraction of the exposure.
+COVERED = 0.99
+
+
+def covered(ctx: Context, velocity: Any) -> np.ndarray:
+    """(1, 1, h, w) 1 where the scatter's output rests on the sharp frame alone, 0 where it needs the
+    push-pull fill: moving pixels that moving paths cover for less than COVERED of the exposure, where
+    the target shows what the sharp frame hides behind a moving object. The fill's guess biases a fit
+    (an object's speed comes out 10 to 15 % short on an object over a textured background), so the
+    scatter's residual leaves such pixels out."""
+    be = ctx.be
+    ones = be.array(np.ones((1, 1, ctx.height, ctx.width)))
+    o = ctx.options
+    alpha = be.ops.bezier_scatter(ones, ctx.depth, -velocity, velocity, degree=1, samples=o["scatter_samples"], shutter=o["shutter"], background=ones * 0.0)
+    return (be.numpy(alpha) >= COVERED).astype(np.float64)
+
+
+def render_batch(ctx: Context, velocities: list) -> Any:
+    """(n, C, h, w): the configured op on n velocity fields (1, 2, h, w) at once, the images repeated."""
+    n = len(velocities)
+    batch = Context(ctx.be, ctx.be.concat([ctx.color] * n), ctx.be.concat([ctx.depth] * n), ctx.target, ctx.height, ctx.width, ctx.scale, ctx.options, ctx.extras)
+    return _blur(batch, ctx.be.concat(velocities))
 
 
 class Model:
@@ -108,6 +138,9 @@ class Model:
     def velocity(self, p: dict, ctx: Context) -> Any:
         raise NotImplementedError
 
+    #: Whether `render` is the configured op on `velocity` (so candidates render in one batch).
+    batched = True
+
     def render(self, p: dict, ctx: Context) -> Any:
         return _blur(ctx, self.velocity(p, ctx))
 
@@ -121,6 +154,40 @@ class Model:
 
     def report(self, p: dict, symmetric: bool) -> dict[str, Any]:
         raise NotImplementedError
+
+    def canonical(self, p: dict) -> dict[str, np.ndarray]:
+        """The representative of the parameters that blur alike under a symmetric shutter."""
+        return p
+
+    def search(self, p: dict, loss: Any, ctx: Context, radius: float, symmetric: bool) -> dict[str, np.ndarray]:
+        """A coarse global search before the local solver (at the coarsest level): `loss([p, ...])`
+        gives the losses of NumPy parameter dicts, `radius` is the largest speed to try in this level's
+        pixels. None by default."""
+        return p
+
+
+#: The coarse search's grid step (pixels of the level it runs at): within the basin of the local
+#: solver for textures smoother than a couple of pixels.
+SEARCH_STEP = 0.5
+
+
+def velocity_candidates(radius: float, symmetric: bool, step: float = SEARCH_STEP) -> np.ndarray:
+    """(n, 2) velocities on a square grid of `step` within `radius` of 0, 0 included; one of each
+    pair {v, -v} when the shutter is symmetric (they blur alike)."""
+    ticks = np.arange(-math.floor(radius / step), math.floor(radius / step) + 1) * step
+    vx, vy = np.meshgrid(ticks, ticks, indexing="xy")
+    v = np.stack([vx.ravel(), vy.ravel()], axis=1)
+    v = v[np.hypot(v[:, 0], v[:, 1]) <= radius + 1e-9]
+    if symmetric:
+        v = v[(v[:, 0] > 0) | ((v[:, 0] == 0) & (v[:, 1] >= 0))]
+    return v
+
+
+def best_candidate(candidates: np.ndarray, losses: Any, make: Any) -> np.ndarray:
+    """The candidate whose parameters `make(candidate)` have the lowest loss; `losses` takes a list
+    of parameter dicts and returns their losses (one batched call of the op per chunk)."""
+    values = np.asarray(losses([make(c) for c in candidates]), dtype=np.float64)
+    return np.array(candidates[int(np.nanargmin(values))], dtype=np.float64)
 
 
 def _start(init: dict | None, name: str, default: Any) -> np.ndarray:
@@ -146,6 +213,13 @@ class Global(Model):
         v = np.asarray(p["velocity"], dtype=np.float64)
         return {"velocity": (canonical_sign(v) if symmetric else v).tolist()}
 
+    def canonical(self, p):
+        return {"velocity": canonical_sign(p["velocity"])}
+
+    def search(self, p, loss, ctx, radius, symmetric):
+        found = best_candidate(velocity_candidates(radius, symmetric), loss, lambda v: {"velocity": v})
+        return {"velocity": nudge(found)}
+
 
 class Exposure(Model):
     """Known motion (`velocity=`, the half-spread at exposure 1), unknown exposure: 1 parameter."""
@@ -165,6 +239,18 @@ class Exposure(Model):
     def report(self, p, symmetric):
         e = float(p["exposure"])
         return {"exposure": abs(e) if symmetric else e}
+
+    def canonical(self, p):
+        return {"exposure": np.abs(p["exposure"])}
+
+    def search(self, p, loss, ctx, radius, symmetric):
+        # Exposures from 2 % to the one that moves the fastest pixel `radius` pixels, log-spaced.
+        speed = float(np.max(np.hypot(*ctx.be.numpy(ctx.extras["velocity"])[0])))
+        top = max(radius / max(speed, 1e-9), 0.05)
+        exposures = np.geomspace(0.02, top, 48)
+        if not symmetric:
+            exposures = np.concatenate([-exposures[::-1], exposures])
+        return {"exposure": best_candidate(exposures, loss, lambda e: {"exposure": np.array(e)}).reshape(())}
 
 
 #: Shutter families with one shape parameter: (window class, field, squashing into its range).
@@ -191,6 +277,7 @@ class Shutter(Model):
     name = "shutter"
     learning_rate = 0.1
     sign_ambiguous = False
+    batched = False
 
     def __init__(self, family: str = "linear_ramp", fit_exposure: bool = False) -> None:
         if family not in SHUTTER_FAMILIES:
@@ -250,6 +337,85 @@ class MotionIds(Model):
         palette = np.asarray(p["palette"], dtype=np.float64)
         return {"palette": (canonical_sign(palette) if symmetric else palette).tolist()}
 
+    def canonical(self, p):
+        return {"palette": canonical_sign(p["palette"])}
+
+    def search(self, p, loss, ctx, radius, symmetric):
+        """Each ID's velocity on the grid in turn, the others held (starting still), twice over, the
+        largest region first. A pixel's blur is even in its own velocity under a symmetric shutter,
+        so each ID searches one of each pair {v, -v}."""
+        palette = np.zeros_like(np.asarray(p["palette"], dtype=np.float64))
+        counts = np.bincount(np.asarray(ctx.be.numpy(ctx.extras["ids"]), dtype=np.int64).ravel(), minlength=len(palette))
+        candidates = velocity_candidates(radius, symmetric)
+        for _ in range(2):
+            for k in np.argsort(-counts[: len(palette)], kind="stable"):
+
+                def at(v, k=k):
+                    trial = palette.copy()
+                    trial[k] = v
+                    return {"palette": trial}
+
+                palette[k] = best_candidate(candidates, loss, at)
+        return {"palette": np.stack([nudge(v) for v in palette])}
+
+
+
+#: `depth_layers`: a jump in depth of more than 10 % starts a new layer (a ratio, so any depth unit
+#: gives the same layers); at most 4 layers; a layer holds at least 0.5 % of the pixels.
+LAYER_DEPTH_RATIO = 1.1
+MAX_LAYERS = 4
+MIN_LAYER_FRACTION = 0.005
+
+
+def depth_layers(depth: np.ndarray, *, max_layers: int = MAX_LAYERS, ratio: float = LAYER_DEPTH_RATIO, min_fraction: float = MIN_LAYER_FRACTION) -> tuple[np.ndarray, np.ndarray]:
+    """Cluster a (1, 1, H, W) positive depth buffer into layers by its gaps: sorted log depths split
+    where consecutive values differ by more than log(ratio), at the `max_layers - 1` largest such
+    gaps; a layer with fewer than `min_fraction` of the pixels joins its nearest neighbour in depth.
+    Scale-free: depth times any constant gives the same layers. A surface tilted to the view (depth
+    varying smoothly) stays one layer.
+
+    Returns (ids, depths): (1, 1, H, W) int64 labels, 0 the nearest layer, and each layer's median depth.
+    """
+    z = np.log(np.asarray(depth, dtype=np.float64))
+    values = np.sort(z.ravel())
+    gaps = np.diff(values)
+    at = np.nonzero(gaps > math.log(ratio))[0]
+    at = np.sort(at[np.argsort(-gaps[at], kind="stable")[: max_layers - 1]])
+    edges = [(values[i] + values[i + 1]) / 2 for i in at]
+    ids = np.digitize(z, edges).astype(np.int64)
+    # Merge layers that are too small into their nearest neighbour in depth.
+    while True:
+        counts = np.bincount(ids.ravel(), minlength=len(edges) + 1)
+        small = [k for k in range(len(counts)) if counts[k] < min_fraction * ids.size]
+        if not small or len(counts) == 1:
+            break
+        k = small[0]
+        medians = [np.median(z[ids == j]) if counts[j] else np.inf for j in range(len(counts))]
+        others = [j for j in range(len(counts)) if j != k and counts[j]]
+        into = min(others, key=lambda j: abs(medians[j] - medians[k])) if counts[k] else others[0]
+        ids[ids == k] = into
+        ids = np.unique(ids, return_inverse=True)[1].reshape(ids.shape).astype(np.int64)
+        edges = edges[: ids.max()]
+    depths = np.array([float(np.exp(np.median(z[ids == k]))) for k in range(int(ids.max()) + 1)])
+    return ids, depths
+
+
+class Layers(MotionIds):
+    """A velocity per depth layer (2 per layer): the layers are the depth buffer's clusters
+    (`depth_layers`), or the given `ids=`. An object over a still background, two objects crossing,
+    a background panning behind a foreground: each layer moves on its own."""
+
+    name = "layers"
+
+    def needs(self):
+        return ("layers",)
+
+    def report(self, p, symmetric):
+        out = super().report(p, symmetric)
+        out["depths"] = [float(d) for d in self.depths]
+        return out
+
+    depths: tuple[float, ...] = ()
 
 def _centred_grid(ctx: Context) -> tuple[Any, Any]:
     """(1, 1, h, w) x - cx and y - cy about the image centre."""
@@ -291,10 +457,29 @@ class CameraMotion(Model):
         return {"pan": p["pan"] * factor, "advance": np.array(p["advance"]), "roll": np.array(p["roll"])}
 
     def report(self, p, symmetric):
-        pan, advance, roll = np.asarray(p["pan"]), float(p["advance"]), float(p["roll"])
-        if symmetric and (pan[0] < 0 or (pan[0] == 0 and pan[1] < 0)):
-            pan, advance, roll = -pan, -advance, -roll
-        return {"pan": pan.tolist(), "advance": advance, "roll": roll}
+        p = self.canonical(p) if symmetric else p
+        return {"pan": np.asarray(p["pan"]).tolist(), "advance": float(p["advance"]), "roll": float(p["roll"])}
+
+    def canonical(self, p):
+        pan = np.asarray(p["pan"], dtype=np.float64)
+        flip = pan[0] < 0 or (pan[0] == 0 and pan[1] < 0) or (not np.any(pan) and float(p["advance"]) < 0)
+        sign = -1.0 if flip else 1.0
+        return {"pan": sign * pan, "advance": np.array(sign * float(p["advance"])), "roll": np.array(sign * float(p["roll"]))}
+
+    def search(self, p, loss, ctx, radius, symmetric):
+        """The pan on the velocity grid (at the median depth), then the advance (a zoom moving the
+        image's corners up to `radius` pixels, either way), then the roll likewise."""
+        depth = ctx.extras["depth_numpy"]
+        z = float(np.median(depth))
+        reach = math.hypot(ctx.width, ctx.height) / 2.0
+        zero = np.array(0.0)
+        pan = best_candidate(velocity_candidates(radius, symmetric) * z, loss, lambda v: {"pan": v, "advance": zero, "roll": zero})
+        ticks = np.linspace(-1.0, 1.0, 33)
+        advance = best_candidate(ticks * radius * float(np.min(depth)) / reach, loss, lambda a: {"pan": pan, "advance": np.array(a), "roll": zero})
+        roll = best_candidate(ticks * min(radius / reach, 1.0), loss, lambda r: {"pan": pan, "advance": np.array(advance), "roll": np.array(r)})
+        if not np.any(pan) and not advance and not roll:
+            pan = nudge(pan / z) * z
+        return {"pan": pan, "advance": np.array(float(advance)), "roll": np.array(float(roll))}
 
 
 class RotationModel(Model):
@@ -303,6 +488,7 @@ class RotationModel(Model):
 
     name = "rotation"
     learning_rate = 0.05
+    batched = False
 
     def init(self, ctx, init):
         mask = ctx.extras["mask_numpy"][0, 0]
@@ -338,6 +524,22 @@ class RotationModel(Model):
     def report(self, p, symmetric):
         angle = float(p["angle"])
         return {"center": np.asarray(p["center"]).tolist(), "angle": abs(angle) if symmetric else angle}
+
+    def canonical(self, p):
+        return {"center": p["center"], "angle": np.abs(p["angle"])}
+
+    def search(self, p, loss, ctx, radius, symmetric):
+        """The angle (about the mask's centroid) at which the turning pixels' rim moves 1/48 to
+        all of `radius` pixels, log-spaced, both ways unless the shutter is symmetric."""
+        mask = ctx.extras["mask_numpy"][0, 0] > 0.5
+        ys, xs = np.nonzero(mask)
+        if not len(xs):
+            return p
+        rim = max(float(np.max(np.hypot(xs - p["center"][0], ys - p["center"][1]))), 1.0)
+        angles = np.geomspace(radius / rim / 48.0, min(radius / rim, 1.5), 48)
+        if not symmetric:
+            angles = np.concatenate([-angles[::-1], angles])
+        return {"center": p["center"], "angle": best_candidate(angles, loss, lambda a: {"center": p["center"], "angle": np.array(a)}).reshape(())}
 
 
 class Tiles(Model):
@@ -380,7 +582,10 @@ class Dense(Model):
 
     def init(self, ctx, init):
         if init and "velocity" in init:
-            field = np.asarray(init["velocity"], dtype=np.float64).reshape(2, ctx.height, ctx.width)
+            field = np.asarray(init["velocity"], dtype=np.float64)
+            if field.shape not in ((2, ctx.height, ctx.width), (1, 2, ctx.height, ctx.width)):
+                raise ValueError(f"init['velocity'] of model 'dense' must be a (1, 2, H, W) field of the image's size, (1, 2, {ctx.height}, {ctx.width}), got shape {field.shape}")
+            field = field.reshape(2, ctx.height, ctx.width)
         else:
             field = np.broadcast_to(np.reshape(DEFAULT_VELOCITY, (2, 1, 1)), (2, ctx.height, ctx.width)).copy()
         return {"velocity": field}
@@ -408,7 +613,7 @@ class Dense(Model):
         return {"velocity_mean": v.reshape(2, -1).mean(axis=1).tolist(), "velocity_shape": list(v.shape)}
 
 
-MODELS: tuple[str, ...] = ("global", "exposure", "shutter", "motion_ids", "camera", "rotation", "tiles", "dense")
+MODELS: tuple[str, ...] = ("global", "exposure", "shutter", "motion_ids", "layers", "camera", "rotation", "tiles", "dense")
 
 
 def build_model(name: str, *, grid: tuple[int, int] = (3, 3), tv_weight: float = 1e-3, shutter_family: str = "linear_ramp", fit_exposure: bool = False) -> Model:
@@ -418,4 +623,4 @@ def build_model(name: str, *, grid: tuple[int, int] = (3, 3), tv_weight: float =
         return Tiles(grid)
     if name == "dense":
         return Dense(tv_weight)
-    return {"global": Global, "exposure": Exposure, "motion_ids": MotionIds, "camera": CameraMotion, "rotation": RotationModel}[name]()
+    return {"global": Global, "exposure": Exposure, "motion_ids": MotionIds, "layers": Layers, "camera": CameraMotion, "rotation": RotationModel}[name]()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -14,7 +15,14 @@ from diffblur import checks
 from diffblur.shutters import get_shutter
 from fitting import _backends, _models, _pyramid, _solvers
 
-METHODS = ("reconstruct", "gather")
+METHODS = ("reconstruct", "gather", "scatter")
+#: Each model's default op (`method=None`), chosen from the held-out evaluation (BENCHMARKS.md,
+#: "Recovery on held-out scenes"); `rotation` always goes through the arc scatter.
+DEFAULT_METHODS = {"global": "reconstruct", "exposure": "reconstruct", "shutter": "reconstruct", "motion_ids": "reconstruct", "layers": "reconstruct", "camera": "reconstruct", "rotation": "scatter", "tiles": "reconstruct", "dense": "reconstruct"}
+#: The coarse search tries speeds up to this many pixels (full resolution) by default.
+SEARCH_RADIUS = 16.0
+#: A fit that explains less than this fraction of the blur (`FitResult.explained`) warns.
+EXPLAINED_WARNING = 0.5
 
 
 @dataclass
@@ -25,8 +33,11 @@ class FitResult:
     `global`; velocities up to sign, in canonical sign, when the shutter is symmetric). loss: the final
     mean squared residual (plus prior) on the cropped finest level. blurred: (1, C, H, W) the target
     re-blurred with the fitted parameters. history: the loss at every solver step, all levels in
-    order. velocity: (1, 2, H, W) the fitted velocity field (pixels). n_params, seconds, the rest as
-    named.
+    order. velocity: (1, 2, H, W) the fitted velocity field (pixels), in the sign `params` reports.
+    converged: the solver's own stopping criterion was met at the finest level (message: why it
+    stopped). explained: 1 - loss / (the loss of the unblurred sharp frame on the same pixels): 1 for
+    a perfect fit, 0 for one no better than no blur. ids: the ID map the palette refers to (`layers`,
+    `motion_ids`). n_params, seconds, the rest as named.
     """
 
     model: str
@@ -42,6 +53,11 @@ class FitResult:
     seconds: float
     raw: dict[str, np.ndarray] = field(repr=False, default_factory=dict)
     pixels: int = 0
+    converged: bool = False
+    explained: float = float("nan")
+    message: str = ""
+    method: str = ""
+    ids: np.ndarray | None = field(repr=False, default=None)
 
 
 def _as_image(name: str, x: Any, channels: int | None = None) -> np.ndarray:
@@ -88,6 +104,63 @@ def _auto_max_radius(speed: float, samples: int, size: int) -> float:
     return float(min(max(4.0, math.ceil(2.0 * speed * (samples + 1) / samples) + 2.0), max(2.0, size / 2)))
 
 
+def _scatter_points(speed: float) -> int:
+    """The scatter's points per path for a level: one per half pixel of a path twice the start's
+    length (room for the speed to double), 8 to 48."""
+    return int(min(48, max(8, math.ceil(8.0 * speed) + 1)))
+
+
+def auto_levels(height: int, width: int, search_radius: float) -> int:
+    """Pyramid levels for an image and a search: halve until the search's largest speed is at most
+    4 px or the image's short side would drop below 24 px, whichever comes first."""
+    by_size = int(math.floor(math.log2(max(min(height, width) / 24.0, 1.0))))
+    by_speed = int(math.ceil(math.log2(max(search_radius / 4.0, 1.0))))
+    return 1 + max(0, min(by_size, by_speed))
+
+
+def _parameter_scale(fit_model: _models.Model, params: dict[str, np.ndarray], ctx: _models.Context) -> np.ndarray:
+    """Per flat parameter, the RMS pixels of motion one unit of it makes (central differences of the
+    model's velocity field), so the solver steps every parameter in comparable units; 1 where a
+    parameter moves nothing (a shutter's shape) and for fields of more than 64 parameters."""
+    y, spec = _flatten(params)
+    if y.size > 64:
+        return np.ones_like(y)
+    be = ctx.be
+    scale = np.ones_like(y)
+    for i in range(y.size):
+        h = 1e-4 * max(1.0, abs(y[i]))
+        fields = []
+        for sign in (1.0, -1.0):
+            trial = y.copy()
+            trial[i] += sign * h
+            fields.append(be.numpy(fit_model.velocity({k: be.array(v) for k, v in _unflatten(trial, spec).items()}, ctx)))
+        rms = float(np.sqrt(np.mean(((fields[0] - fields[1]) / (2 * h)) ** 2)))
+        if rms > 1e-3:
+            scale[i] = rms
+    return scale
+
+
+#: Candidates rendered per batched call of the op in the coarse search.
+SEARCH_BATCH = 64
+
+
+def _losses(fit_model: _models.Model, ctx: _models.Context, candidates: list[dict[str, np.ndarray]], margin: int) -> np.ndarray:
+    """The data loss of each candidate's parameters on a level (the solver's, without the prior),
+    rendered SEARCH_BATCH at a time where the model allows it."""
+    be = ctx.be
+    crop = int(round(margin * ctx.scale))
+    out = []
+    for start in range(0, len(candidates), SEARCH_BATCH):
+        chunk = [{k: be.array(v) for k, v in c.items()} for c in candidates[start : start + SEARCH_BATCH]]
+        if fit_model.batched:
+            rendered = _models.render_batch(ctx, [fit_model.velocity(p, ctx) for p in chunk])
+        else:
+            rendered = be.concat([fit_model.render(p, ctx) for p in chunk])
+        error = be.numpy(((rendered - ctx.target) * ctx.extras["weight"])[:, :, crop : ctx.height - crop, crop : ctx.width - crop])
+        out.append(np.mean(error**2, axis=(1, 2, 3)))
+    return np.concatenate(out)
+
+
 def recover(
     sharp: Any,
     target: Any,
@@ -95,11 +168,13 @@ def recover(
     model: str,
     depth: Any = None,
     backend: str = "torch",
-    method: str = "reconstruct",
+    method: str | None = None,
     solver: str | None = None,
     iterations: int | None = None,
-    levels: int = 1,
+    levels: int | None = None,
     init: dict[str, Any] | None = None,
+    search: bool = True,
+    search_radius: float = SEARCH_RADIUS,
     velocity: Any = None,
     ids: Any = None,
     mask: Any = None,
@@ -118,31 +193,39 @@ def recover(
     jac: str = "fwd",
     dtype: str = "float64",
     on_step: Callable[[int, float], None] | None = None,
+    warn: bool = True,
 ) -> FitResult:
     """Recover a motion model's parameters from a sharp frame and a blurred target.
 
     Args:
         sharp, target: (1, C, H, W) linear images (NumPy, or any array NumPy can read).
-        model: one of `fitting.MODELS`: "global", "exposure", "shutter", "motion_ids", "camera",
-            "rotation", "tiles", "dense".
+        model: one of `fitting.MODELS`: "global", "exposure", "shutter", "motion_ids", "layers",
+            "camera", "rotation", "tiles", "dense".
         depth: (1, 1, H, W) positive depth (reconstruct's depth test, the camera's parallax, the
-            scatter's depth test); None for a flat scene (depth 1).
-        backend: "torch" or "jax". solver: torch "adam" (default) or "lbfgs"; JAX "lm"
-            (Levenberg-Marquardt; matrix-free CG for `dense`), "dogleg" (default), "bfgs", "lbfgs"
-            (the default for `dense`) or "adam" (optax through optimistix).
-        method: the op the blur goes through, "reconstruct" (seed 000) or "gather" (seed 001);
-            `rotation` always uses the arc scatter (seed 003). Seed 000's taps span S / (S + 1) of the
-            exposure, so the reconstruct path scales the velocity by (S + 1) / S: the parameters are
-            the scene's, not the filter's.
-        iterations: solver steps per level (default: 60 for Adam, 20 otherwise).
-        levels: pyramid levels for coarse-to-fine (1 = single scale); each level halves the size,
-            the fit at a coarse level starts the next finer one. Large blurs have local minima that
-            the coarse levels step over.
-        init: starting values by parameter name, full resolution ({"velocity": (vx, vy)} ...). A
-            velocity start at 0 is moved to 0.1 px: v = 0 is a stationary point of a symmetric shutter.
+            scatter's depth test, the layers of `layers`); None for a flat scene (depth 1).
+        backend: "torch" or "jax".
+        method: the op the blur goes through: "reconstruct" (seed 000), "gather" (seed 001) or
+            "scatter" (seed 003's scatter of linear motion, offsets -V and +V, with the push-pull
+            fill); None takes the model's default (`DEFAULT_METHODS`). `rotation` always uses the
+            arc scatter. Seed 000's taps span S / (S + 1) of the exposure, so the reconstruct path
+            scales the velocity by (S + 1) / S: the parameters are the scene's, not the filter's.
+        solver: "lbfgs" (the default in both frameworks: SciPy's L-BFGS-B on the framework's exact
+            gradient, one loop for both, so they reach the same minimum), torch "adam", JAX "lm"
+            (Levenberg-Marquardt; matrix-free CG for `dense`), "dogleg", "bfgs" or "adam" (optimistix).
+        iterations: solver steps per level (default: 200 for lbfgs, 60 for Adam, 20 otherwise).
+        levels: pyramid levels for coarse-to-fine (1 = single scale; None: `auto_levels`, from the
+            image size and `search_radius`); each level halves the size, the fit at a coarse level
+            starts the next finer one.
+        init: starting values by parameter name, full resolution ({"velocity": (vx, vy)} ...); given,
+            it replaces the coarse search. A velocity start at 0 is moved to 0.1 px: v = 0 is a
+            stationary point of a symmetric shutter.
+        search: without `init`, search the coarsest level on a grid of candidates (velocities up to
+            `search_radius` pixels at full resolution; exposures, angles and zooms that move pixels as
+            far) before the local solver, so a fit converges from no start for blurs that large.
         velocity: the known motion of `exposure` and `shutter`, (1, 2, H, W) or (vx, vy), the
-            half-spread at exposure 1. ids: (1, 1, H, W) integer ID map of `motion_ids`. mask: (1, 1,
-            H, W) the pixels that turn in `rotation` (default: those nearer than the farthest depth).
+            half-spread at exposure 1. ids: (1, 1, H, W) integer ID map of `motion_ids` (and of
+            `layers`, which otherwise clusters `depth`: `fitting.depth_layers`). mask: (1, 1, H, W)
+            the pixels that turn in `rotation` (default: those nearer than the farthest depth).
             background: (1, C, H, W) for the scatter's two-layer normalisation (`rotation`).
         shutter: the window the blur assumes (name or `diffblur.shutters` window); with a symmetric
             one the velocity is reported up to sign (canonical sign: x > 0), an asymmetric one
@@ -159,6 +242,8 @@ def recover(
         learning_rate: Adam's (default per model). jac: "fwd" or "bwd" Jacobians for LM and Dogleg
             ("bwd" for ops with a custom_vjp). dtype: "float64" or "float32".
         on_step: called as on_step(step, loss) after every solver step (e.g. a progress bar).
+        warn: a `UserWarning` naming the model when the fit did not converge or explains less than
+            EXPLAINED_WARNING (half) of the blur.
 
     Returns:
         A `FitResult`.
@@ -166,6 +251,7 @@ def recover(
     start_time = time.perf_counter()
     checks.require_choice("model", model, _models.MODELS)
     checks.require_choice("backend", backend, _backends.BACKENDS)
+    method = DEFAULT_METHODS[model] if method is None else method
     checks.require_choice("method", method, METHODS)
     checks.require_choice("dtype", dtype, ("float64", "float32"))
     checks.require_choice("jac", jac, ("fwd", "bwd"))
@@ -173,14 +259,16 @@ def recover(
     checks.require_choice("solver", solver, _solvers.TORCH_SOLVERS if backend == "torch" else _solvers.JAX_SOLVERS)
     samples = checks.require_odd_int("samples", samples)
     arc_samples = checks.require_positive_int("arc_samples", arc_samples)
-    iterations = (60 if solver == "adam" else 20) if iterations is None else checks.require_positive_int("iterations", iterations)
-    levels = checks.require_positive_int("levels", levels)
+    default_iterations = {"lbfgs": 200, "adam": 60}.get(solver, 20)
+    iterations = default_iterations if iterations is None else checks.require_positive_int("iterations", iterations)
+    search_radius = checks.require_positive_number("search_radius", search_radius)
     window = get_shutter(shutter)
 
     color = _as_image("sharp", sharp)
     goal = _as_image("target", target)
     checks.require_same_shape("target", goal.shape, "sharp", color.shape)
     _, _, height, width = color.shape
+    levels = min(auto_levels(height, width, search_radius), _pyramid.max_levels(height, width)) if levels is None else checks.require_positive_int("levels", levels)
     if levels > _pyramid.max_levels(height, width):
         raise ValueError(f"levels must be <= {_pyramid.max_levels(height, width)} for a {height} x {width} image (coarsest level >= 8 pixels), got {levels}")
     z = np.ones((1, 1, height, width)) if depth is None else _as_image("depth", depth, channels=1)
@@ -200,6 +288,10 @@ def recover(
         arrays["velocity"] = np.broadcast_to(v.reshape(1, 2, 1, 1), (1, 2, height, width)).copy() if v.size == 2 else _as_image("velocity", v, channels=2)
     if "ids" in fit_model.needs() and ids is None:
         raise ValueError("model 'motion_ids' needs ids= (a (1, 1, H, W) integer ID map)")
+    if "layers" in fit_model.needs() and ids is None:
+        if depth is None:
+            raise ValueError("model 'layers' needs depth= (its layers are the depth buffer's clusters) or ids=")
+        ids, fit_model.depths = _models.depth_layers(z)
     if ids is not None:  # any model: the boundary band must leave out the same pixels for all
         id_map = np.asarray(ids)
         checks.require_same_shape("ids", id_map.shape, "depth", z.shape)
@@ -207,6 +299,8 @@ def recover(
             raise ValueError(f"ids must be non-negative integers, got dtype {id_map.dtype} and minimum {id_map.min()}")
         arrays["ids"] = id_map
         arrays["weight"] = _away_from_boundaries(id_map, checks.require_nonnegative_number("boundary", boundary))
+        if isinstance(fit_model, _models.Layers) and not len(fit_model.depths):
+            fit_model.depths = tuple(float(np.median(z[id_map == k])) if np.any(id_map == k) else float("nan") for k in range(int(id_map.max()) + 1))
     if model == "rotation":
         arrays["mask"] = (z < z.max() - 1e-9 * z.max()).astype(np.float64) if mask is None else np.asarray(mask, dtype=np.float64)
         if not arrays["mask"].any():
@@ -218,16 +312,37 @@ def recover(
     be = _backends.adapter(backend, dtype)
     pyramid = _pyramid.pyramid(arrays, levels)
     palette_size = int(arrays["ids"].max()) + 1 if arrays["ids"] is not None else 0
+    # The JAX ops' custom_vjp rules (the fused kernels) have reverse-mode gradients only: forward-mode
+    # Jacobians (jac="fwd") are for the least-squares solvers alone.
+    jac = jac if solver in _solvers.LEAST_SQUARES else "bwd"
 
-    def context(level: int, radius: float) -> _models.Context:
+    def context(level: int, speed: float) -> _models.Context:
         a = pyramid[level]
         h, w = a["color"].shape[2:]
         extras = {"palette_size": palette_size, "depth_numpy": a["depth"], "mask_numpy": a["mask"]}
         for name in ("velocity", "mask", "background", "weight"):
             extras[name] = None if a[name] is None else be.array(a[name])
         extras["ids"] = None if a["ids"] is None else be.ints(a["ids"])
-        options = {"method": method, "samples": samples, "arc_samples": arc_samples, "shutter": window, "max_radius": radius, "jac": jac}
+        radius = max_radius if max_radius is not None else _auto_max_radius(speed, samples, max(h, w))
+        options = {"method": method, "samples": samples, "arc_samples": arc_samples, "shutter": window, "max_radius": radius, "jac": jac, "scatter_samples": _scatter_points(speed)}
         return _models.Context(be, be.array(a["color"]), be.array(a["depth"]), be.array(a["target"]), h, w, 0.5**level, options, extras)
+
+    def speed_of(params: dict[str, np.ndarray], level: int) -> float:
+        probe = context(level, 1.0)
+        return float(np.max(np.hypot(*be.numpy(fit_model.velocity({k: be.array(v) for k, v in params.items()}, probe))[0])))
+
+    def objective(ctx: _models.Context, spec: list) -> tuple[Callable, float]:
+        """The level's residual vector as a function of the flat parameters, and its pixel count."""
+        crop = int(round(margin * ctx.scale))
+        rows, cols = slice(crop, ctx.height - crop), slice(crop, ctx.width - crop)
+        count = float(goal.shape[1] * (ctx.height - 2 * crop) * (ctx.width - 2 * crop))
+
+        def residuals(y):
+            p = _unflatten(y, spec)
+            data = ((fit_model.render(p, ctx) - ctx.target) * ctx.extras["weight"])[:, :, rows, cols].reshape(-1) / math.sqrt(count)
+            return be.concat([data, *fit_model.prior(p, ctx)])
+
+        return residuals, count
 
     # Start values at full resolution, then down to the coarsest level.
     finest = context(0, 2.0)
@@ -235,6 +350,13 @@ def recover(
     for level in range(1, levels):
         h, w = pyramid[level]["color"].shape[2:]
         params = fit_model.rescale(params, 0.5, h, w)
+
+    symmetric = _models.is_symmetric(window)
+    if search and not init:
+        coarsest = levels - 1
+        radius = search_radius * 0.5**coarsest
+        ctx = context(coarsest, radius)
+        params = fit_model.search(params, lambda candidates: _losses(fit_model, ctx, candidates, margin), ctx, radius, symmetric)
 
     history: list[float] = []
 
@@ -244,49 +366,54 @@ def recover(
             on_step(len(history), loss)
 
     learning_rate = fit_model.learning_rate if learning_rate is None else checks.require_positive_number("learning_rate", learning_rate)
+    trust_coverage = method == "scatter" and model != "rotation"
 
-    def fit_from(params: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], Any, Callable, np.ndarray, float]:
+    def fit_from(params: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], Any, Callable, np.ndarray, float, _solvers.Solved]:
         """Coarse to fine from `params` (coarsest level's); the finest level's results."""
-        for level in reversed(range(levels)):
-            probe = context(level, 2.0)
-            speed = float(np.max(np.hypot(*be.numpy(fit_model.velocity({k: be.array(v) for k, v in params.items()}, probe))[0])))
-            radius = max_radius if max_radius is not None else _auto_max_radius(speed, samples, max(probe.height, probe.width))
-            ctx = context(level, radius)
-            crop = int(round(margin * ctx.scale))
-            rows = slice(crop, ctx.height - crop)
-            cols = slice(crop, ctx.width - crop)
-            count = float(np.prod(pyramid[level]["target"][:, :, rows, cols].shape))
+        # The scatter's fits leave out the pixels that rest on its fill (`_models.covered`), found
+        # from each level's start; the finest level is solved twice, the second time with the pixels
+        # found from its first answer.
+        passes = [(level, 1) for level in reversed(range(levels))] + ([(0, 2)] if trust_coverage else [])
+        for level, _pass in passes:
+            ctx = context(level, speed_of(params, level))
             y0, spec = _flatten(params)
-
-            def residuals(y, ctx=ctx, spec=spec, rows=rows, cols=cols, count=count):
-                p = _unflatten(y, spec)
-                data = ((fit_model.render(p, ctx) - ctx.target) * ctx.extras["weight"])[:, :, rows, cols].reshape(-1) / math.sqrt(count)
-                return be.concat([data, *fit_model.prior(p, ctx)])
-
-            if backend == "torch":
-                y = _solvers.torch_solve(be, residuals, y0, solver=solver, iterations=iterations, learning_rate=learning_rate, on_step=record)
+            if trust_coverage:
+                shown = _models.covered(ctx, fit_model.velocity({k: be.array(v) for k, v in params.items()}, ctx))
+                ctx.extras["weight"] = be.array(pyramid[level]["weight"] * shown)
+            residuals, _ = objective(ctx, spec)
+            if solver == "lbfgs":
+                solved = _solvers.lbfgs_solve(be.value_and_grad(lambda y: (residuals(y) ** 2).sum()), y0, scale=_parameter_scale(fit_model, params, ctx), iterations=iterations, on_step=record)
+            elif backend == "torch":
+                solved = _solvers.torch_adam(be, residuals, y0, iterations=iterations, learning_rate=learning_rate, on_step=record)
             else:
-                y = _solvers.jax_solve(be, residuals, y0, solver=solver, iterations=iterations, learning_rate=learning_rate, on_step=record, jac=jac, matrix_free=model == "dense")
-            params = {k: np.asarray(v, dtype=np.float64) for k, v in _unflatten(y, spec).items()}
+                solved = _solvers.jax_solve(be, residuals, y0, solver=solver, iterations=iterations, learning_rate=learning_rate, on_step=record, jac=jac, matrix_free=model == "dense")
+            params = {k: np.asarray(v, dtype=np.float64) for k, v in _unflatten(solved.y, spec).items()}
             if level > 0:
                 h, w = pyramid[level - 1]["color"].shape[2:]
                 params = fit_model.rescale(params, 2.0, h, w)
-        loss = float(np.sum(be.numpy(residuals(be.array(y))) ** 2))
-        return params, ctx, residuals, y, loss
+        loss = float(np.sum(be.numpy(residuals(be.array(solved.y))) ** 2))
+        return params, ctx, residuals, solved.y, loss, solved
 
-    symmetric = _models.is_symmetric(window)
     best = fit_from(params)
-    if not symmetric and model == "global":
+    if not symmetric and model == "global" and not search:
         # An asymmetric shutter tells +v from -v, but each is a local minimum of the other's basin:
-        # start from both signs and keep the better fit.
+        # without the search (which tries both), start from both signs and keep the better fit.
         mirrored = fit_from({"velocity": -params["velocity"]})
         if mirrored[4] < best[4]:
             best = mirrored
-    params, ctx, residuals, y, loss = best
-    p_be = _unflatten(be.array(y), [(k, np.shape(v)) for k, v in params.items()])
+    params, ctx, residuals, y, loss, solved = best
+    if symmetric and fit_model.sign_ambiguous:
+        params = fit_model.canonical(params)
+    y, spec = _flatten(params)
+    p_be = _unflatten(be.array(y), spec)
     blurred = be.numpy(fit_model.render(p_be, ctx))
     field_ = be.numpy(fit_model.velocity(p_be, ctx))
-    return FitResult(
+    # The same pixels and weights, with no blur at all: what the fit is measured against.
+    crop = int(round(margin * ctx.scale))
+    unblurred = (color - goal) * be.numpy(ctx.extras["weight"])
+    unblurred_loss = float(np.sum(unblurred[:, :, crop : height - crop, crop : width - crop] ** 2) / (goal.shape[1] * (height - 2 * crop) * (width - 2 * crop)))
+    explained = 1.0 - loss / unblurred_loss if unblurred_loss > 0 else float("nan")
+    result = FitResult(
         model=model,
         backend=backend,
         solver=solver,
@@ -300,4 +427,18 @@ def recover(
         seconds=time.perf_counter() - start_time,
         raw=params,
         pixels=int(np.prod(goal.shape)),
+        converged=bool(solved.converged),
+        explained=float(explained),
+        message=solved.message,
+        method=method,
+        ids=arrays["ids"],
     )
+    if warn and not result.converged:
+        warnings.warn(f"recover(model={model!r}) did not converge: {result.message}", UserWarning, stacklevel=2)
+    if warn and not explained >= EXPLAINED_WARNING:
+        warnings.warn(
+            f"recover(model={model!r}) explains only {explained:.0%} of the blur (1 - loss / the unblurred frame's loss): the model may not fit this scene; select_model tries richer ones",
+            UserWarning,
+            stacklevel=2,
+        )
+    return result
