@@ -16,9 +16,10 @@ from diffblur.shutters import get_shutter
 from fitting import _backends, _models, _pyramid, _solvers
 
 METHODS = ("reconstruct", "gather", "scatter")
-#: Each model's default op (`method=None`), chosen from the held-out evaluation (BENCHMARKS.md,
-#: "Recovery on held-out scenes"); `rotation` always goes through the arc scatter.
-DEFAULT_METHODS = {"global": "reconstruct", "exposure": "reconstruct", "shutter": "reconstruct", "motion_ids": "reconstruct", "layers": "reconstruct", "camera": "reconstruct", "rotation": "scatter", "tiles": "reconstruct", "dense": "reconstruct"}
+#: Each model's default op (`method=None`): the scatter where objects move over a still background
+#: (the only op that spreads them over the pixels they pass; see `_models.covered`), else the
+#: reconstruction filter; `rotation` always goes through the arc scatter.
+DEFAULT_METHODS = {"global": "reconstruct", "exposure": "scatter", "shutter": "reconstruct", "motion_ids": "reconstruct", "layers": "scatter", "camera": "reconstruct", "rotation": "scatter", "tiles": "reconstruct", "dense": "reconstruct"}
 #: The coarse search tries speeds up to this many pixels (full resolution) by default.
 SEARCH_RADIUS = 16.0
 #: A fit that explains less than this fraction of the blur (`FitResult.explained`) warns.

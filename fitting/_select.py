@@ -3,17 +3,19 @@
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from diffblur import checks
-from fitting._models import MODELS
+from fitting._models import MODELS, depth_layers
 from fitting._recover import FitResult, recover
 
-#: Tried in this order among models of equal size; `dense` is left out unless asked for.
-DEFAULT_CANDIDATES = ("global", "rotation", "motion_ids", "camera", "tiles")
+#: Tried in this order among models of equal size; `dense` is left out unless asked for, `layers`
+#: is tried only with depth and `motion_ids` only with ids.
+DEFAULT_CANDIDATES = ("global", "rotation", "layers", "motion_ids", "camera", "tiles")
 
 
 @dataclass
@@ -27,8 +29,8 @@ class Selection:
     fits: dict[str, FitResult] = field(repr=False)
 
 
-def _size(model: str, palette_size: int, grid: tuple[int, int]) -> int:
-    return {"global": 2, "rotation": 3, "camera": 4, "motion_ids": 2 * palette_size, "tiles": 2 * grid[0] * grid[1]}.get(model, 10**9)
+def _size(model: str, palette_size: int, layer_count: int, grid: tuple[int, int]) -> int:
+    return {"global": 2, "rotation": 3, "camera": 4, "motion_ids": 2 * palette_size, "layers": 2 * layer_count, "tiles": 2 * grid[0] * grid[1]}.get(model, 10**9)
 
 
 def bic(result: FitResult) -> float:
@@ -58,12 +60,14 @@ def select_model(
     parameters always shave a little off it. Losses below `floor` (a mean squared error of 1e-5,
     about the renderers' own error on a translation) count as equal: there a gain is the solvers'
     convergence, not the model. The search stops after `patience` richer models in a row
-    that do not pay. `motion_ids` is a candidate only with `ids`. Other keyword options go to
+    that do not pay. `motion_ids` is a candidate only with `ids`, `layers` (a velocity per depth
+    layer, `fitting.depth_layers`) only with `depth` that has more than one layer. Other keyword options go to
     `recover` (backend, method, solver, iterations, levels, ...).
 
     Returns a `Selection` (choice, reason, table, fits).
     """
-    candidates = tuple(c for c in (DEFAULT_CANDIDATES if candidates is None else candidates) if c != "motion_ids" or ids is not None)
+    layer_count = int(depth_layers(np.asarray(depth, dtype=np.float64))[0].max()) + 1 if depth is not None else 0
+    candidates = tuple(c for c in (DEFAULT_CANDIDATES if candidates is None else candidates) if (c != "motion_ids" or ids is not None) and (c != "layers" or layer_count > 1))
     for name in candidates:
         checks.require_choice("candidates", name, MODELS)
         if name in ("exposure", "shutter"):
@@ -74,17 +78,19 @@ def select_model(
     min_gain = checks.require_in_interval("min_gain", min_gain, 0.0, 1.0)
     floor = checks.require_nonnegative_number("floor", floor)
     palette_size = int(np.max(ids)) + 1 if ids is not None else 0
-    order = sorted(candidates, key=lambda m: (_size(m, palette_size, grid), candidates.index(m)))
+    order = sorted(candidates, key=lambda m: (_size(m, palette_size, layer_count, grid), candidates.index(m)))
 
     fits: dict[str, FitResult] = {}
     table: list[dict[str, Any]] = []
     best: str | None = None
     misses = 0
     for name in order:
-        kwargs = dict(options, ids=ids)
+        kwargs = dict(options, ids=None if name == "layers" else ids)
         if name == "tiles":
             kwargs["grid"] = grid
-        fits[name] = fit = recover(sharp, target, model=name, depth=depth, **kwargs)
+        with warnings.catch_warnings():  # a candidate that cannot explain the scene is expected here
+            warnings.simplefilter("ignore", UserWarning)
+            fits[name] = fit = recover(sharp, target, model=name, depth=depth, **kwargs)
         row = {"model": name, "n_params": fit.n_params, "loss": fit.loss, "bic": bic(fit)}
         if best is None:
             row["verdict"] = "baseline"

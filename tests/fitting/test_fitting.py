@@ -31,7 +31,7 @@ def test_global_velocity_noise_free_and_with_noise(translation32):
     s, _, truth = translation32
     clean = fitting.recover(s.color, s.target, model="global", method="gather", samples=15)
     assert _up_to_sign(clean.params["velocity"], truth["velocity"]) < 0.1, clean.params
-    assert clean.history[-1] < 0.01 * clean.history[0]
+    assert clean.converged and clean.explained > 0.99, (clean.converged, clean.explained)
     noisy_target = s.target + np.random.default_rng(0).normal(scale=0.01, size=s.target.shape)
     noisy = fitting.recover(s.color, noisy_target, model="global", method="gather", samples=15)
     assert _up_to_sign(noisy.params["velocity"], truth["velocity"]) < 0.5, noisy.params
@@ -92,8 +92,10 @@ def test_coarse_to_fine_converges_from_far_where_a_single_scale_does_not():
     fitting/measure.py)."""
     s, _, truth = scenes.translation(32, (3.0, 1.0), margin=32)
     options = dict(model="global", method="gather", samples=15, init={"velocity": (3.0, 17.0)}, solver="adam", iterations=40)
-    single = fitting.recover(s.color, s.target, **options)
-    pyramid = fitting.recover(s.color, s.target, levels=3, **options)
+    with pytest.warns(UserWarning, match="did not converge"):
+        single = fitting.recover(s.color, s.target, levels=1, **options)
+    with pytest.warns(UserWarning, match="did not converge: adam ran its 40 steps"):
+        pyramid = fitting.recover(s.color, s.target, levels=3, **options)
     assert _up_to_sign(single.params["velocity"], truth["velocity"]) > 1.0, single.params
     assert _up_to_sign(pyramid.params["velocity"], truth["velocity"]) < 0.1, pyramid.params
 
@@ -174,7 +176,7 @@ def test_levenberg_marquardt_is_matrix_free_for_a_dense_field():
     matrix_free = _solvers._optimistix_solver("lm", 0.1, matrix_free=True).descent.linear_solver
     assert isinstance(matrix_free, lx.Normal) and isinstance(matrix_free.inner_solver, lx.CG)
     assert isinstance(_solvers._optimistix_solver("lm", 0.1, matrix_free=False).descent.linear_solver, lx.QR)
-    assert _solvers.default_solver("jax", "dense") == "lbfgs" and _solvers.default_solver("jax", "global") == "dogleg"
+    assert _solvers.default_solver("jax", "dense") == "lbfgs" and _solvers.default_solver("jax", "global") == "lbfgs"
 
 
 @pytest.mark.parametrize(
@@ -199,7 +201,7 @@ def test_bad_arguments():
         fitting.recover(image, image, model="exposure")
     with pytest.raises(ValueError, match="needs ids="):
         fitting.recover(image, image, model="motion_ids")
-    with pytest.raises(ValueError, match="solver must be one of 'adam', 'lbfgs'; got 'lm'"):
+    with pytest.raises(ValueError, match="solver must be one of 'lbfgs', 'adam'; got 'lm'"):
         fitting.recover(image, image, model="global", solver="lm")
     with pytest.raises(ValueError, match="levels must be <= 2"):
         fitting.recover(image, image, model="global", levels=3)
