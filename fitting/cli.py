@@ -18,7 +18,7 @@ import numpy as np
 from fitting._models import MODELS
 
 #: Every default the command uses, printed by --help.
-DEFAULTS = {"model": "global", "backend": "torch", "method": "reconstruct", "levels": 1, "samples": 9, "out": "fit_out"}
+DEFAULTS = {"model": "global", "backend": "torch", "method": "the model's default", "levels": "from the image size", "samples": 9, "out": "fit_out"}
 
 
 def load_image(path: str, *, channels: int | None = None) -> np.ndarray:
@@ -104,6 +104,9 @@ def fit_files(
         "solver": result.solver,
         "params": result.params,
         "loss": result.loss,
+        "converged": result.converged,
+        "explained": result.explained,
+        "method": result.method,
         "steps": len(result.history),
         "seconds": result.seconds,
     }
@@ -127,10 +130,10 @@ def add_fit_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--velocity", type=float, nargs=2, metavar=("VX", "VY"), help="known half-spread velocity (models exposure, shutter)")
     parser.add_argument("--model", default=DEFAULTS["model"], choices=MODELS, help=f"default: {DEFAULTS['model']}")
     parser.add_argument("--backend", default=DEFAULTS["backend"], choices=("torch", "jax"), help=f"default: {DEFAULTS['backend']}")
-    parser.add_argument("--solver", help="torch: adam, lbfgs; jax: lm, dogleg, bfgs, lbfgs, adam (default per backend and model)")
-    parser.add_argument("--method", default=DEFAULTS["method"], choices=("reconstruct", "gather"), help=f"default: {DEFAULTS['method']}")
-    parser.add_argument("--iterations", type=int, help="solver steps per level (default 60 for adam, else 20)")
-    parser.add_argument("--levels", type=int, default=DEFAULTS["levels"], help="coarse-to-fine pyramid levels (default: 1)")
+    parser.add_argument("--solver", help="lbfgs (default, both backends), torch adam; jax lm, dogleg, bfgs, adam")
+    parser.add_argument("--method", choices=("reconstruct", "gather", "scatter"), help=f"default: {DEFAULTS['method']}")
+    parser.add_argument("--iterations", type=int, help="solver steps per level (default 200 for lbfgs, 60 for adam, else 20)")
+    parser.add_argument("--levels", type=int, help=f"coarse-to-fine pyramid levels (default: {DEFAULTS['levels']})")
     parser.add_argument("--samples", type=int, default=DEFAULTS["samples"], help="taps of the blur, odd (default: 9)")
     parser.add_argument("--out", default=DEFAULTS["out"], help=f"output folder (default: {DEFAULTS['out']})")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -142,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
     options = {k: getattr(args, k) for k in ("model", "backend", "solver", "method", "iterations", "levels", "samples") if getattr(args, k) is not None}
     summary = fit_files(args.sharp, args.target, depth=args.depth, ids=args.ids, velocity=args.velocity, out=args.out, progress=not args.no_progress, **options)
     print(json.dumps(summary["params"]))
-    print(f"loss {summary['loss']:.4e} after {summary['steps']} steps ({summary['seconds']:.1f} s); wrote {os.path.join(args.out, 'params.json')} and fit.png")
+    print(f"loss {summary['loss']:.4e} after {summary['steps']} steps ({summary['seconds']:.1f} s), converged: {summary['converged']}, explains {summary['explained']:.1%} of the blur; wrote {os.path.join(args.out, 'params.json')} and fit.png")
     return 0
 
 
