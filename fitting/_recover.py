@@ -20,6 +20,8 @@ METHODS = ("reconstruct", "gather", "scatter")
 #: (the only op that spreads them over the pixels they pass; see `_models.covered`), else the
 #: reconstruction filter; `rotation` always goes through the arc scatter.
 DEFAULT_METHODS = {"global": "reconstruct", "exposure": "scatter", "shutter": "reconstruct", "motion_ids": "reconstruct", "layers": "scatter", "camera": "reconstruct", "rotation": "scatter", "tiles": "reconstruct", "dense": "reconstruct"}
+#: Through the scatter, an ID slower than this (pixels) is also tried exactly still (see `recover`).
+STILL_SPEED = 0.25
 #: The coarse search tries speeds up to this many pixels (full resolution) by default.
 SEARCH_RADIUS = 16.0
 #: A fit that explains less than this fraction of the blur (`FitResult.explained`) warns.
@@ -369,12 +371,14 @@ def recover(
     learning_rate = fit_model.learning_rate if learning_rate is None else checks.require_positive_number("learning_rate", learning_rate)
     trust_coverage = method == "scatter" and model != "rotation"
 
-    def fit_from(params: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], Any, Callable, np.ndarray, float, _solvers.Solved]:
-        """Coarse to fine from `params` (coarsest level's); the finest level's results."""
+    def fit_from(params: dict[str, np.ndarray], *, finest_only: bool = False, fixed: np.ndarray | None = None) -> tuple[dict[str, np.ndarray], Any, Callable, np.ndarray, float, _solvers.Solved]:
+        """Coarse to fine from `params` (coarsest level's; the finest's with `finest_only`), the
+        `fixed` parameters held (lbfgs); the finest level's results."""
         # The scatter's fits leave out the pixels that rest on its fill (`_models.covered`), found
         # from each level's start; the finest level is solved twice, the second time with the pixels
         # found from its first answer.
-        passes = [(level, 1) for level in reversed(range(levels))] + ([(0, 2)] if trust_coverage else [])
+        passes = [] if finest_only else [(level, 1) for level in reversed(range(1, levels))]
+        passes += [(0, 1)] + ([(0, 2)] if trust_coverage else [])
         for level, _pass in passes:
             ctx = context(level, speed_of(params, level))
             y0, spec = _flatten(params)
@@ -383,7 +387,7 @@ def recover(
                 ctx.extras["weight"] = be.array(pyramid[level]["weight"] * shown)
             residuals, _ = objective(ctx, spec)
             if solver == "lbfgs":
-                solved = _solvers.lbfgs_solve(be.value_and_grad(lambda y: (residuals(y) ** 2).sum()), y0, scale=_parameter_scale(fit_model, params, ctx), iterations=iterations, on_step=record)
+                solved = _solvers.lbfgs_solve(be.value_and_grad(lambda y: (residuals(y) ** 2).sum()), y0, scale=_parameter_scale(fit_model, params, ctx), iterations=iterations, on_step=record, fixed=fixed)
             elif backend == "torch":
                 solved = _solvers.torch_adam(be, residuals, y0, iterations=iterations, learning_rate=learning_rate, on_step=record)
             else:
@@ -402,6 +406,19 @@ def recover(
         mirrored = fit_from({"velocity": -params["velocity"]})
         if mirrored[4] < best[4]:
             best = mirrored
+    if trust_coverage and solver == "lbfgs" and isinstance(fit_model, _models.MotionIds):
+        # The scatter treats a pixel as still only when its velocity is exactly 0, and composites a
+        # still background under what passes over it but a moving one beside it (seed 003 has no
+        # depth write): a background fitted to a few hundredths of a pixel blurs unlike a still one,
+        # and no gradient leads to exactly 0. So IDs slower than STILL_SPEED are tried at exactly 0,
+        # the others refitted, and that answer kept where its loss is no higher.
+        palette = best[0]["palette"]
+        still = np.hypot(palette[:, 0], palette[:, 1]) < STILL_SPEED
+        if still.any() and np.any(palette[still] != 0):
+            snapped = {"palette": np.where(still[:, None], 0.0, palette)}
+            refit = fit_from(snapped, finest_only=True, fixed=np.repeat(still, 2))
+            if refit[4] <= best[4]:
+                best = refit
     params, ctx, residuals, y, loss, solved = best
     if symmetric and fit_model.sign_ambiguous:
         params = fit_model.canonical(params)

@@ -45,7 +45,7 @@ LBFGS_FTOL = 1e-13
 LBFGS_GTOL = 1e-10
 
 
-def lbfgs_solve(value_and_grad: Callable[[np.ndarray], tuple[float, np.ndarray]], y0: np.ndarray, *, scale: np.ndarray, iterations: int, on_step: Callable[[float], None]) -> Solved:
+def lbfgs_solve(value_and_grad: Callable[[np.ndarray], tuple[float, np.ndarray]], y0: np.ndarray, *, scale: np.ndarray, iterations: int, on_step: Callable[[float], None], fixed: np.ndarray | None = None) -> Solved:
     """SciPy's L-BFGS-B on `value_and_grad(y) -> (loss, dloss/dy)` (NumPy in and out, float64).
 
     The solver sees x = y * scale (`scale`: the pixels of motion one unit of each parameter makes, so
@@ -74,7 +74,9 @@ def lbfgs_solve(value_and_grad: Callable[[np.ndarray], tuple[float, np.ndarray]]
     def callback(intermediate_result):
         on_step(float(intermediate_result.fun) * norm)
 
-    result = minimize(fun, np.asarray(y0, dtype=np.float64) * scale, jac=True, method="L-BFGS-B", callback=callback, options={"maxiter": iterations, "maxcor": 20, "ftol": LBFGS_FTOL, "gtol": LBFGS_GTOL})
+    x0 = np.asarray(y0, dtype=np.float64) * scale
+    bounds = None if fixed is None else [(x, x) if hold else (None, None) for x, hold in zip(x0, np.asarray(fixed, dtype=bool))]
+    result = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bounds, callback=callback, options={"maxiter": iterations, "maxcor": 20, "ftol": LBFGS_FTOL, "gtol": LBFGS_GTOL})
     message = str(result.message)
     converged = bool(result.success)
     if not converged and "ABNORMAL" in message.upper():
