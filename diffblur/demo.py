@@ -102,7 +102,7 @@ def fit_motion(scene_name: str, *, size: int = FIT_SIZE) -> tuple[object, list[D
     fits = []
     for backend in ("torch", "jax"):
         result = fitting.recover(
-            scene.color, scene.target, model="motion_ids", ids=ids, depth=scene.depth, backend=backend, method="gather", samples=9, solver="lbfgs", iterations=15, boundary=3, levels=3
+            scene.color, scene.target, model=fitting.MotionIds(ids, boundary=3), depth=scene.depth, backend=backend, method="gather", samples=9, solver="lbfgs", iterations=15, levels=3
         )
         fitted = np.asarray(result.params["palette"], dtype=np.float64)
         flip = np.sum(fitted * true_palette, axis=1, keepdims=True) < 0

@@ -8,12 +8,14 @@ framework arrays inside it (`render`, `prior`).
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 
+from diffblur import checks
 from diffblur.shutters import LinearRamp, ShutterWindow, Trapezoid, Tukey, get_shutter
 
 #: Default start for velocities: away from the v = 0 stationary point of a symmetric shutter, and
@@ -129,8 +131,11 @@ class Model:
     #: Whether the blur depends on the sign of the velocity only through the shutter.
     sign_ambiguous: ClassVar[bool] = True
 
-    def needs(self) -> tuple[str, ...]:
-        return ()
+    def inputs(self, shape: tuple[int, ...], depth: np.ndarray, depth_given: bool) -> dict[str, np.ndarray]:
+        """The model's own full-resolution arrays for the pyramid ("velocity", "ids", "mask",
+        "background", and "weight" to multiply the residual's), checked against the image's `shape`
+        (1, C, H, W); none by default."""
+        return {}
 
     def init(self, ctx: Context, init: dict | None) -> dict[str, np.ndarray]:
         raise NotImplementedError
@@ -194,6 +199,45 @@ def _start(init: dict | None, name: str, default: Any) -> np.ndarray:
     return np.array(default if not init or name not in init else init[name], dtype=np.float64)
 
 
+def known_velocity(velocity: Any, shape: tuple[int, ...], model: str) -> np.ndarray:
+    """(1, 2, H, W) float64 from a (vx, vy) pair or a field, the half-spread at exposure 1."""
+    if velocity is None:
+        raise ValueError(f"model {model!r} fits the exposure or shutter of a known motion: pass fitting.{type_names[model]}(velocity=...) (the half-spread at exposure 1)")
+    v = np.asarray(velocity.detach().cpu() if hasattr(velocity, "detach") else velocity, dtype=np.float64)
+    height, width = shape[2:]
+    if v.size == 2:
+        return np.broadcast_to(v.reshape(1, 2, 1, 1), (1, 2, height, width)).copy()
+    checks.require_image("velocity", v.shape, channels=2)
+    checks.require_same_batch_and_size("sharp", shape, [("velocity", v.shape)])
+    return v
+
+
+def id_map(ids: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """A checked (1, 1, H, W) map of non-negative integer IDs."""
+    ids = np.asarray(ids)
+    expected = (1, 1, *shape[2:])
+    if ids.shape != expected:
+        raise ValueError(f"ids must have shape {expected} (one ID per pixel), got {ids.shape}")
+    if not np.issubdtype(ids.dtype, np.integer) or ids.min() < 0:
+        raise ValueError(f"ids must be non-negative integers, got dtype {ids.dtype} and minimum {ids.min()}")
+    return ids.astype(np.int64)
+
+
+def away_from_boundaries(ids: np.ndarray, distance: float) -> np.ndarray:
+    """(1, 1, H, W) 1 where no pixel within `distance` (Chebyshev) has another ID, else 0."""
+    weight = np.ones(ids.shape, dtype=np.float64)
+    reach = int(math.ceil(distance))
+    if reach == 0:
+        return weight
+    padded = np.pad(ids[0, 0], reach, mode="edge")
+    h, w = ids.shape[2:]
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            shifted = padded[reach + dy : reach + dy + h, reach + dx : reach + dx + w]
+            weight[0, 0][shifted != ids[0, 0]] = 0.0
+    return weight
+
+
 class Global(Model):
     """One velocity (x, y) in pixels for the whole image: 2 parameters."""
 
@@ -222,13 +266,18 @@ class Global(Model):
 
 
 class Exposure(Model):
-    """Known motion (`velocity=`, the half-spread at exposure 1), unknown exposure: 1 parameter."""
+    """Known motion, unknown exposure: 1 parameter.
+
+    velocity: the known motion, (vx, vy) or a (1, 2, H, W) field, the half-spread at exposure 1."""
 
     name = "exposure"
     learning_rate = 0.05
 
-    def needs(self):
-        return ("velocity",)
+    def __init__(self, velocity: Any = None) -> None:
+        self.known = velocity
+
+    def inputs(self, shape, depth, depth_given):
+        return {"velocity": known_velocity(self.known, shape, self.name)}
 
     def init(self, ctx, init):
         return {"exposure": _start(init, "exposure", 0.5)}
@@ -271,22 +320,24 @@ def _unsquash(kind: str, y: float) -> float:
 
 
 class Shutter(Model):
-    """Known motion, unknown shutter shape: the shape parameter of `family` (1 parameter), and the
-    exposure too with fit_exposure (2). The shape is held squashed into its range (tanh, sigmoid)."""
+    """Known motion (`velocity`, as `Exposure`'s), unknown shutter shape: the shape parameter of
+    `family` ("linear_ramp", "tukey", "trapezoid"; 1 parameter), and the exposure too with
+    fit_exposure (2). The shape is held squashed into its range (tanh, sigmoid)."""
 
     name = "shutter"
     learning_rate = 0.1
     sign_ambiguous = False
     batched = False
 
-    def __init__(self, family: str = "linear_ramp", fit_exposure: bool = False) -> None:
+    def __init__(self, velocity: Any = None, *, family: str = "linear_ramp", fit_exposure: bool = False) -> None:
         if family not in SHUTTER_FAMILIES:
-            raise ValueError(f"shutter_family must be one of {', '.join(repr(f) for f in SHUTTER_FAMILIES)}; got {family!r}")
+            raise ValueError(f"family must be one of {', '.join(repr(f) for f in SHUTTER_FAMILIES)}; got {family!r}")
+        self.known = velocity
         self.family = family
         self.fit_exposure = fit_exposure
 
-    def needs(self):
-        return ("velocity",)
+    def inputs(self, shape, depth, depth_given):
+        return {"velocity": known_velocity(self.known, shape, self.name)}
 
     def init(self, ctx, init):
         cls, field, kind = SHUTTER_FAMILIES[self.family]
@@ -314,13 +365,24 @@ class Shutter(Model):
 
 
 class MotionIds(Model):
-    """One velocity per ID of a given ID map (`ids=`, seed 001's vector motion IDs): 2 per ID."""
+    """One velocity per ID of an ID map (seed 001's vector motion IDs): 2 per ID.
+
+    ids: (1, 1, H, W) non-negative integers. boundary: leave out of the residual the pixels within
+    this many pixels of a change of ID: there objects occlude each other over the exposure, which the
+    filters only approximate, and that error would bias every velocity it touches (0: keep them)."""
 
     name = "motion_ids"
     learning_rate = 0.2
 
-    def needs(self):
-        return ("ids",)
+    def __init__(self, ids: Any = None, *, boundary: float = 0) -> None:
+        self.ids = ids
+        self.boundary = checks.require_nonnegative_number("boundary", boundary)
+
+    def inputs(self, shape, depth, depth_given):
+        if self.ids is None:
+            raise ValueError("model 'motion_ids' needs an ID map: pass fitting.MotionIds(ids=...) (a (1, 1, H, W) integer map)")
+        ids = id_map(self.ids, shape)
+        return {"ids": ids, "weight": away_from_boundaries(ids, self.boundary)}
 
     def init(self, ctx, init):
         count = ctx.extras["palette_size"]
@@ -401,21 +463,38 @@ def depth_layers(depth: np.ndarray, *, max_layers: int = MAX_LAYERS, ratio: floa
 
 
 class Layers(MotionIds):
-    """A velocity per depth layer (2 per layer): the layers are the depth buffer's clusters
-    (`depth_layers`), or the given `ids=`. An object over a still background, two objects crossing,
-    a background panning behind a foreground: each layer moves on its own."""
+    """A velocity per depth layer (2 per layer). An object over a still background, two objects
+    crossing, a background panning behind a foreground: each layer moves on its own.
+
+    The layers are the depth buffer's clusters (`depth_layers` with `max_layers` and `ratio`), or
+    the given `ids`; `boundary` as `MotionIds`'. params: "palette" (a velocity per layer, the
+    nearest first) and "depths" (each layer's median depth)."""
 
     name = "layers"
 
-    def needs(self):
-        return ("layers",)
+    def __init__(self, ids: Any = None, *, boundary: float = 0, max_layers: int = MAX_LAYERS, ratio: float = LAYER_DEPTH_RATIO) -> None:
+        super().__init__(ids, boundary=boundary)
+        self.max_layers = checks.require_positive_int("max_layers", max_layers)
+        if not ratio > 1:
+            raise ValueError(f"ratio must be a depth ratio > 1, got {ratio}")
+        self.ratio = float(ratio)
+        self.depths: tuple[float, ...] = ()
+
+    def inputs(self, shape, depth, depth_given):
+        if self.ids is None:
+            if not depth_given:
+                raise ValueError("model 'layers' needs depth= (its layers are the depth buffer's clusters) or fitting.Layers(ids=...)")
+            ids, depths = depth_layers(depth, max_layers=self.max_layers, ratio=self.ratio)
+        else:
+            ids = id_map(self.ids, shape)
+            depths = [float(np.median(depth[ids == k])) if np.any(ids == k) else float("nan") for k in range(int(ids.max()) + 1)]
+        self.depths = tuple(float(d) for d in depths)
+        return {"ids": ids, "weight": away_from_boundaries(ids, self.boundary)}
 
     def report(self, p, symmetric):
         out = super().report(p, symmetric)
         out["depths"] = [float(d) for d in self.depths]
         return out
-
-    depths: tuple[float, ...] = ()
 
 def _centred_grid(ctx: Context) -> tuple[Any, Any]:
     """(1, 1, h, w) x - cx and y - cy about the image centre."""
@@ -482,13 +561,36 @@ class CameraMotion(Model):
         return {"pan": pan, "advance": np.array(float(advance)), "roll": np.array(float(roll))}
 
 
-class RotationModel(Model):
+class Rotation(Model):
     """A centre (x, y) and an angle (radians at t = 1): curved motion through the arc scatter, 3
-    parameters. Only pixels of `mask=` turn (default: those nearer than the farthest depth)."""
+    parameters.
+
+    mask: (1, 1, H, W) the pixels that turn (default: those nearer than the farthest depth; all where
+    that leaves none). background: (1, C, H, W) the still background, for the scatter's two-layer
+    normalisation."""
 
     name = "rotation"
     learning_rate = 0.05
     batched = False
+
+    def __init__(self, *, mask: Any = None, background: Any = None) -> None:
+        self.mask = mask
+        self.background = background
+
+    def inputs(self, shape, depth, depth_given):
+        if self.mask is None:
+            mask = (depth < depth.max() - 1e-9 * depth.max()).astype(np.float64)
+        else:
+            mask = np.asarray(self.mask, dtype=np.float64)
+            checks.require_same_shape("mask", mask.shape, "depth", depth.shape)
+        if not mask.any():
+            mask = np.ones_like(depth)
+        out = {"mask": mask}
+        if self.background is not None:
+            background = np.asarray(self.background, dtype=np.float64)
+            checks.require_same_shape("background", background.shape, "sharp", tuple(shape))
+            out["background"] = background
+        return out
 
     def init(self, ctx, init):
         mask = ctx.extras["mask_numpy"][0, 0]
@@ -550,6 +652,8 @@ class Tiles(Model):
     learning_rate = 0.2
 
     def __init__(self, grid: tuple[int, int] = (3, 3)) -> None:
+        if len(tuple(grid)) != 2 or min(int(g) for g in grid) < 1:
+            raise ValueError(f"grid must be (rows, columns) of at least 1 node each, got {grid!r}")
         self.grid = (int(grid[0]), int(grid[1]))
 
     def init(self, ctx, init):
@@ -578,7 +682,7 @@ class Dense(Model):
     TV_EPS = 1e-3
 
     def __init__(self, tv_weight: float = 1e-3) -> None:
-        self.tv_weight = float(tv_weight)
+        self.tv_weight = checks.require_nonnegative_number("tv_weight", tv_weight)
 
     def init(self, ctx, init):
         if init and "velocity" in init:
@@ -613,14 +717,17 @@ class Dense(Model):
         return {"velocity_mean": v.reshape(2, -1).mean(axis=1).tolist(), "velocity_shape": list(v.shape)}
 
 
-MODELS: tuple[str, ...] = ("global", "exposure", "shutter", "motion_ids", "layers", "camera", "rotation", "tiles", "dense")
+#: The model classes by name; a name is the shortcut for the class with its defaults.
+MODEL_TYPES: dict[str, type[Model]] = {"global": Global, "exposure": Exposure, "shutter": Shutter, "motion_ids": MotionIds, "layers": Layers, "camera": CameraMotion, "rotation": Rotation, "tiles": Tiles, "dense": Dense}
+MODELS: tuple[str, ...] = tuple(MODEL_TYPES)
+type_names = {name: cls.__name__ for name, cls in MODEL_TYPES.items()}
 
 
-def build_model(name: str, *, grid: tuple[int, int] = (3, 3), tv_weight: float = 1e-3, shutter_family: str = "linear_ramp", fit_exposure: bool = False) -> Model:
-    if name == "shutter":
-        return Shutter(shutter_family, fit_exposure)
-    if name == "tiles":
-        return Tiles(grid)
-    if name == "dense":
-        return Dense(tv_weight)
-    return {"global": Global, "exposure": Exposure, "motion_ids": MotionIds, "layers": Layers, "camera": CameraMotion, "rotation": RotationModel}[name]()
+def as_model(model: str | Model) -> Model:
+    """A fresh model to fit: a name's defaults, or a copy of a model object (recover keeps per-fit
+    state on it, such as the layers' depths, and the caller's object must not change)."""
+    if isinstance(model, Model):
+        return copy.copy(model)
+    if isinstance(model, str) and model in MODEL_TYPES:
+        return MODEL_TYPES[model]()
+    raise ValueError(f"model must be one of {', '.join(repr(m) for m in MODEL_TYPES)} or a fitting model object (fitting.Exposure(velocity=...), ...), got {model!r}")

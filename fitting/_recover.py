@@ -71,21 +71,6 @@ def _as_image(name: str, x: Any, channels: int | None = None) -> np.ndarray:
     return x
 
 
-def _away_from_boundaries(ids: np.ndarray, distance: float) -> np.ndarray:
-    """(1, 1, H, W) 1 where no pixel within `distance` (Chebyshev) has another ID, else 0."""
-    weight = np.ones(ids.shape, dtype=np.float64)
-    reach = int(math.ceil(distance))
-    if reach == 0:
-        return weight
-    padded = np.pad(ids[0, 0], reach, mode="edge")
-    h, w = ids.shape[2:]
-    for dy in range(-reach, reach + 1):
-        for dx in range(-reach, reach + 1):
-            shifted = padded[reach + dy : reach + dy + h, reach + dx : reach + dx + w]
-            weight[0, 0][shifted != ids[0, 0]] = 0.0
-    return weight
-
-
 def _flatten(p: dict[str, np.ndarray]) -> tuple[np.ndarray, list[tuple[str, tuple[int, ...]]]]:
     spec = [(k, np.shape(v)) for k, v in p.items()]
     return np.concatenate([np.ravel(v) for v in p.values()]).astype(np.float64), spec
@@ -168,7 +153,7 @@ def recover(
     sharp: Any,
     target: Any,
     *,
-    model: str,
+    model: str | _models.Model,
     depth: Any = None,
     backend: str = "torch",
     method: str | None = None,
@@ -178,20 +163,12 @@ def recover(
     init: dict[str, Any] | None = None,
     search: bool = True,
     search_radius: float = SEARCH_RADIUS,
-    velocity: Any = None,
-    ids: Any = None,
-    mask: Any = None,
-    background: Any = None,
     shutter: Any = "box",
     samples: int = 9,
     arc_samples: int = 16,
-    boundary: int = 0,
     max_radius: float | None = None,
     margin: int | None = None,
-    grid: tuple[int, int] = (3, 3),
-    tv_weight: float = 1e-3,
-    shutter_family: str = "linear_ramp",
-    fit_exposure: bool = False,
+    weight: Any = None,
     learning_rate: float | None = None,
     jac: str = "fwd",
     dtype: str = "float64",
@@ -202,8 +179,11 @@ def recover(
 
     Args:
         sharp, target: (1, C, H, W) linear images (NumPy, or any array NumPy can read).
-        model: one of `fitting.MODELS`: "global", "exposure", "shutter", "motion_ids", "layers",
-            "camera", "rotation", "tiles", "dense".
+        model: a model object carrying its own options (`fitting.Global()`, `Exposure(velocity=...)`,
+            `Shutter(velocity=..., family=...)`, `MotionIds(ids=..., boundary=...)`, `Layers(...)`,
+            `CameraMotion()`, `Rotation(mask=..., background=...)`, `Tiles(grid=...)`,
+            `Dense(tv_weight=...)`), or one of `fitting.MODELS` as a shortcut for its defaults
+            ("global", "layers", "camera", "rotation", "tiles", "dense"; the others need data).
         depth: (1, 1, H, W) positive depth (reconstruct's depth test, the camera's parallax, the
             scatter's depth test, the layers of `layers`); None for a flat scene (depth 1).
         backend: "torch" or "jax".
@@ -225,11 +205,6 @@ def recover(
         search: without `init`, search the coarsest level on a grid of candidates (velocities up to
             `search_radius` pixels at full resolution; exposures, angles and zooms that move pixels as
             far) before the local solver, so a fit converges from no start for blurs that large.
-        velocity: the known motion of `exposure` and `shutter`, (1, 2, H, W) or (vx, vy), the
-            half-spread at exposure 1. ids: (1, 1, H, W) integer ID map of `motion_ids` (and of
-            `layers`, which otherwise clusters `depth`: `fitting.depth_layers`). mask: (1, 1, H, W)
-            the pixels that turn in `rotation` (default: those nearer than the farthest depth).
-            background: (1, C, H, W) for the scatter's two-layer normalisation (`rotation`).
         shutter: the window the blur assumes (name or `diffblur.shutters` window); with a symmetric
             one the velocity is reported up to sign (canonical sign: x > 0), an asymmetric one
             (LinearRamp) resolves it.
@@ -237,11 +212,8 @@ def recover(
         max_radius: reconstruct's tile radius; None sets it per level from the starting velocity.
         margin: border pixels (full resolution) left out of the residual, where the target saw
             outside the image; default max(2, min(H, W) // 10).
-        boundary: with `ids` (for any model, so that models compare on the same pixels), also leave out pixels within this many pixels of a change of ID:
-            there objects occlude each other over the exposure, which the filters only approximate,
-            and that error would bias every velocity it touches (default 0: keep them).
-        grid: nodes of `tiles`; tv_weight: the smoothness prior of `dense`; shutter_family and
-            fit_exposure: what `shutter` fits.
+        weight: (1, 1, H, W) a weight on every pixel's residual (0 leaves it out), on top of the
+            model's own (`MotionIds`' boundary band); `select_model` gives every candidate the same.
         learning_rate: Adam's (default per model). jac: "fwd" or "bwd" Jacobians for LM and Dogleg
             ("bwd" for ops with a custom_vjp). dtype: "float64" or "float32".
         on_step: called as on_step(step, loss) after every solver step (e.g. a progress bar).
@@ -252,13 +224,12 @@ def recover(
         A `FitResult`.
     """
     start_time = time.perf_counter()
-    checks.require_choice("model", model, _models.MODELS)
     checks.require_choice("backend", backend, _backends.BACKENDS)
-    method = DEFAULT_METHODS[model] if method is None else method
+    method = DEFAULT_METHODS[_models.as_model(model).name] if method is None else method
     checks.require_choice("method", method, METHODS)
     checks.require_choice("dtype", dtype, ("float64", "float32"))
     checks.require_choice("jac", jac, ("fwd", "bwd"))
-    solver = _solvers.default_solver(backend, model) if solver is None else solver
+    solver = _solvers.default_solver(backend, _models.as_model(model).name) if solver is None else solver
     checks.require_choice("solver", solver, _solvers.TORCH_SOLVERS if backend == "torch" else _solvers.JAX_SOLVERS)
     samples = checks.require_odd_int("samples", samples)
     arc_samples = checks.require_positive_int("arc_samples", arc_samples)
@@ -282,35 +253,17 @@ def recover(
     if 2 * margin >= min(height, width):
         raise ValueError(f"margin must leave pixels to compare: < {min(height, width) // 2} for a {height} x {width} image, got {margin}")
 
-    fit_model = _models.build_model(model, grid=grid, tv_weight=tv_weight, shutter_family=shutter_family, fit_exposure=fit_exposure)
-    arrays: dict[str, np.ndarray | None] = {"color": color, "target": goal, "depth": z, "velocity": None, "ids": None, "mask": None, "background": None, "weight": np.ones_like(z)}
-    if "velocity" in fit_model.needs():
-        if velocity is None:
-            raise ValueError(f"model {model!r} fits the exposure or shutter of a known motion: pass velocity= (the half-spread at exposure 1)")
-        v = np.asarray(velocity, dtype=np.float64)
-        arrays["velocity"] = np.broadcast_to(v.reshape(1, 2, 1, 1), (1, 2, height, width)).copy() if v.size == 2 else _as_image("velocity", v, channels=2)
-    if "ids" in fit_model.needs() and ids is None:
-        raise ValueError("model 'motion_ids' needs ids= (a (1, 1, H, W) integer ID map)")
-    if "layers" in fit_model.needs() and ids is None:
-        if depth is None:
-            raise ValueError("model 'layers' needs depth= (its layers are the depth buffer's clusters) or ids=")
-        ids, fit_model.depths = _models.depth_layers(z)
-    if ids is not None:  # any model: the boundary band must leave out the same pixels for all
-        id_map = np.asarray(ids)
-        checks.require_same_shape("ids", id_map.shape, "depth", z.shape)
-        if not np.issubdtype(id_map.dtype, np.integer) or id_map.min() < 0:
-            raise ValueError(f"ids must be non-negative integers, got dtype {id_map.dtype} and minimum {id_map.min()}")
-        arrays["ids"] = id_map
-        arrays["weight"] = _away_from_boundaries(id_map, checks.require_nonnegative_number("boundary", boundary))
-        if isinstance(fit_model, _models.Layers) and not len(fit_model.depths):
-            fit_model.depths = tuple(float(np.median(z[id_map == k])) if np.any(id_map == k) else float("nan") for k in range(int(id_map.max()) + 1))
-    if model == "rotation":
-        arrays["mask"] = (z < z.max() - 1e-9 * z.max()).astype(np.float64) if mask is None else np.asarray(mask, dtype=np.float64)
-        if not arrays["mask"].any():
-            arrays["mask"] = np.ones_like(z)
-        checks.require_same_shape("mask", arrays["mask"].shape, "depth", z.shape)
-        if background is not None:
-            arrays["background"] = _as_image("background", background)
+    fit_model = _models.as_model(model)
+    model = fit_model.name
+    if weight is None:
+        shared_weight = np.ones_like(z)
+    else:
+        shared_weight = np.asarray(weight, dtype=np.float64)
+        checks.require_same_shape("weight", shared_weight.shape, "depth", z.shape)
+    arrays: dict[str, np.ndarray | None] = {"color": color, "target": goal, "depth": z, "velocity": None, "ids": None, "mask": None, "background": None, "weight": shared_weight}
+    own = fit_model.inputs(color.shape, z, depth is not None)
+    arrays["weight"] = shared_weight * own.pop("weight", 1.0)
+    arrays.update(own)
 
     be = _backends.adapter(backend, dtype)
     pyramid = _pyramid.pyramid(arrays, levels)

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from diffblur import checks
-from fitting._models import MODELS, depth_layers
+from fitting._models import MODELS, Layers, MotionIds, Rotation, Tiles, away_from_boundaries, depth_layers
 from fitting._recover import FitResult, recover
 
 #: Tried in this order among models of equal size; `dense` is left out unless asked for, `layers`
@@ -45,6 +45,8 @@ def select_model(
     *,
     depth: Any = None,
     ids: Any = None,
+    boundary: float = 0,
+    background: Any = None,
     candidates: tuple[str, ...] | None = None,
     min_gain: float = 0.05,
     floor: float = 1e-5,
@@ -60,9 +62,12 @@ def select_model(
     parameters always shave a little off it. Losses below `floor` (a mean squared error of 1e-5,
     about the renderers' own error on a translation) count as equal: there a gain is the solvers'
     convergence, not the model. The search stops after `patience` richer models in a row
-    that do not pay. `motion_ids` is a candidate only with `ids`, `layers` (a velocity per depth
-    layer, `fitting.depth_layers`) only with `depth` that has more than one layer. Other keyword options go to
-    `recover` (backend, method, solver, iterations, levels, ...).
+    that do not pay. `motion_ids` is a candidate only with `ids` (`fitting.MotionIds(ids)`), `layers`
+    (a velocity per depth layer, `fitting.depth_layers`) only with `depth` that has more than one
+    layer. With `ids`, every candidate leaves out the pixels within `boundary` pixels of a change of
+    ID, so that all are scored on the same pixels. `background` goes to `rotation`
+    (`fitting.Rotation(background=...)`), `grid` to `tiles`. Other keyword options go to `recover`
+    (backend, method, solver, iterations, levels, ...).
 
     Returns a `Selection` (choice, reason, table, fits).
     """
@@ -78,6 +83,7 @@ def select_model(
     min_gain = checks.require_in_interval("min_gain", min_gain, 0.0, 1.0)
     floor = checks.require_nonnegative_number("floor", floor)
     palette_size = int(np.max(ids)) + 1 if ids is not None else 0
+    weight = away_from_boundaries(np.asarray(ids), checks.require_nonnegative_number("boundary", boundary)) if ids is not None else None
     order = sorted(candidates, key=lambda m: (_size(m, palette_size, layer_count, grid), candidates.index(m)))
 
     fits: dict[str, FitResult] = {}
@@ -85,12 +91,10 @@ def select_model(
     best: str | None = None
     misses = 0
     for name in order:
-        kwargs = dict(options, ids=None if name == "layers" else ids)
-        if name == "tiles":
-            kwargs["grid"] = grid
+        model = {"motion_ids": lambda: MotionIds(ids), "layers": Layers, "rotation": lambda: Rotation(background=background), "tiles": lambda: Tiles(grid)}.get(name, lambda: name)()
         with warnings.catch_warnings():  # a candidate that cannot explain the scene is expected here
             warnings.simplefilter("ignore", UserWarning)
-            fits[name] = fit = recover(sharp, target, model=name, depth=depth, **kwargs)
+            fits[name] = fit = recover(sharp, target, model=model, depth=depth, weight=weight, **options)
         row = {"model": name, "n_params": fit.n_params, "loss": fit.loss, "bic": bic(fit)}
         if best is None:
             row["verdict"] = "baseline"

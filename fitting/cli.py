@@ -79,18 +79,28 @@ def fit_files(
 
     sharp_image = load_image(sharp)
     target_image = load_image(target)
+    from fitting import _models
+
     kwargs = dict(options)
+    name = kwargs.pop("model", DEFAULTS["model"])
     if depth is not None:
         kwargs["depth"] = load_image(depth, channels=1)
-    if ids is not None:
-        kwargs["ids"] = np.load(ids).astype(np.int64).reshape(1, 1, *sharp_image.shape[2:])
+    # The model object carries the data its name needs: a known motion, an ID map.
+    model_options: dict[str, Any] = {}
     if velocity is not None:
-        kwargs["velocity"] = tuple(velocity)
+        if name not in ("exposure", "shutter"):
+            raise ValueError(f"--velocity is the known motion of models exposure and shutter, not of {name!r}")
+        model_options["velocity"] = tuple(velocity)
+    if ids is not None:
+        if name not in ("motion_ids", "layers"):
+            raise ValueError(f"--ids is the ID map of models motion_ids and layers, not of {name!r}")
+        model_options["ids"] = np.load(ids).astype(np.int64).reshape(1, 1, *sharp_image.shape[2:])
+    kwargs["model"] = _models.MODEL_TYPES[name](**model_options)
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(desc=f"fit {options.get('model', '')}", unit="step", file=sys.stderr)
+        bar = tqdm(desc=f"fit {name}", unit="step", file=sys.stderr)
         kwargs["on_step"] = lambda step, loss: (bar.update(1), bar.set_postfix(loss=f"{loss:.3e}"))
     try:
         result = recover(sharp_image, target_image, **kwargs)

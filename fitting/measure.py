@@ -80,19 +80,19 @@ def _accuracy(size: int, far: float, noise: float) -> list[dict[str, Any]]:
         rows.append(_row(f"sign, shutter {label} (reported, vs the true sign)", r, r.params["velocity"], flipped, float(np.abs(np.subtract(r.params["velocity"], flipped)).max())))
     # Exposure and shutter shape.
     for backend, solver in (("torch", "lbfgs"), ("jax", "dogleg")):
-        r = fitting.recover(s.color, s.target, depth=s.depth, model="exposure", velocity=velocity, backend=backend, solver=solver, iterations=10)
+        r = fitting.recover(s.color, s.target, depth=s.depth, model=fitting.Exposure(velocity), backend=backend, solver=solver, iterations=10)
         rows.append(_row("exposure (reconstruct)", r, r.params["exposure"], 1.0, abs(r.params["exposure"] - 1.0)))
-        r = fitting.recover(s.color, s.target, model="exposure", velocity=velocity, backend=backend, method="gather", samples=31)
+        r = fitting.recover(s.color, s.target, model=fitting.Exposure(velocity), backend=backend, method="gather", samples=31)
         rows.append(_row("exposure (gather, 31 taps)", r, r.params["exposure"], 1.0, abs(r.params["exposure"] - 1.0)))
     # Rotation (the propeller, arc scatter) and motion IDs (two objects).
     p, _, ptruth = scenes.propeller(size, 0.5)
     for backend, solver in (("torch", "lbfgs"), ("jax", "dogleg")):
-        r = fitting.recover(p.color, p.target, depth=p.depth, model="rotation", background=p.background, backend=backend, solver=solver, iterations=12, init={"angle": 0.3})
+        r = fitting.recover(p.color, p.target, depth=p.depth, model=fitting.Rotation(background=p.background), backend=backend, solver=solver, iterations=12, init={"angle": 0.3})
         rows.append(_row("rotation angle (relative error)", r, r.params["angle"], 0.5, abs(r.params["angle"] - 0.5) / 0.5))
     t, ids, ttruth = scenes.two_objects(size)
     for backend, solver in (("torch", "lbfgs"), ("jax", "dogleg")):
         for method in ("gather", "reconstruct"):
-            r = fitting.recover(t.color, t.target, depth=t.depth, ids=ids, model="motion_ids", method=method, boundary=3, backend=backend, solver=solver, iterations=15, init={"palette": [[2.0, 0.5], [-0.5, 1.5]]})
+            r = fitting.recover(t.color, t.target, depth=t.depth, model=fitting.MotionIds(ids, boundary=3), method=method, backend=backend, solver=solver, iterations=15, init={"palette": [[2.0, 0.5], [-0.5, 1.5]]})
             error = max(_up_to_sign(f, e) for f, e in zip(r.params["palette"], ttruth["palette"]))
             rows.append(_row(f"motion_ids {method}, boundary 3", r, r.params["palette"], ttruth["palette"], error))
     # Coarse-to-fine from `far` px away.

@@ -77,13 +77,13 @@ def test_symmetric_shutter_reports_the_canonical_sign_and_an_asymmetric_one_the_
 
 def test_exposure_within_one_percent(translation32):
     s, _, _ = translation32
-    result = fitting.recover(s.color, s.target, model="exposure", method="gather", samples=31, velocity=(3.0, -1.5))
+    result = fitting.recover(s.color, s.target, model=fitting.Exposure(velocity=(3.0, -1.5)), method="gather", samples=31)
     assert abs(result.params["exposure"] - 1.0) < 0.01, result.params
 
 
 def test_shutter_slope_of_a_linear_ramp():
     ramp_scene, _, _ = scenes.translation(32, (3.0, -1.5), shutter=LinearRamp(0.6))
-    result = fitting.recover(ramp_scene.color, ramp_scene.target, model="shutter", method="gather", samples=15, velocity=(3.0, -1.5))
+    result = fitting.recover(ramp_scene.color, ramp_scene.target, model=fitting.Shutter(velocity=(3.0, -1.5)), method="gather", samples=15)
     assert abs(result.params["slope"] - 0.6) < 0.1, result.params
 
 
@@ -114,7 +114,7 @@ def test_motion_ids_velocities_within_a_quarter_pixel():
     left out of the residual."""
     s, ids, truth = scenes.two_objects(48)
     result = fitting.recover(
-        s.color, s.target, depth=s.depth, ids=ids, model="motion_ids", method="gather", samples=9, solver="lbfgs", iterations=15, boundary=3, init={"palette": [[2.0, 0.5], [-0.5, 1.5]]}
+        s.color, s.target, depth=s.depth, model=fitting.MotionIds(ids, boundary=3), method="gather", samples=9, solver="lbfgs", iterations=15, init={"palette": [[2.0, 0.5], [-0.5, 1.5]]}
     )
     for found, expected in zip(result.params["palette"], truth["palette"]):
         assert _up_to_sign(found, expected) < 0.25, result.params
@@ -122,7 +122,7 @@ def test_motion_ids_velocities_within_a_quarter_pixel():
 
 def test_rotation_angle_within_two_percent():
     s, _, truth = scenes.propeller(32, 0.5)
-    result = fitting.recover(s.color, s.target, depth=s.depth, model="rotation", background=s.background, solver="lbfgs", iterations=12, init={"angle": 0.3})
+    result = fitting.recover(s.color, s.target, depth=s.depth, model=fitting.Rotation(background=s.background), solver="lbfgs", iterations=12, init={"angle": 0.3})
     assert abs(result.params["angle"] - truth["angle"]) < 0.02 * truth["angle"], result.params
     assert np.abs(np.subtract(result.params["center"], truth["center"])).max() < 1.0, result.params
 
@@ -151,7 +151,7 @@ def test_dense_field_lowers_the_loss_and_its_prior_is_total_variation(translatio
     """A per-pixel field: the loss falls; the prior's residuals square to tv_weight x mean
     sqrt(d^2 + eps) of the field's differences (0 differences: sqrt(eps))."""
     s, _, _ = translation32
-    result = fitting.recover(s.color, s.target, model="dense", method="gather", samples=9, solver="lbfgs", iterations=15, tv_weight=1e-4)
+    result = fitting.recover(s.color, s.target, model=fitting.Dense(tv_weight=1e-4), method="gather", samples=9, solver="lbfgs", iterations=15)
     assert result.history[-1] < 0.2 * result.history[0]
     from fitting._backends import adapter
     from fitting._models import Dense
@@ -197,10 +197,18 @@ def test_bad_arguments():
     image = np.zeros((1, 3, 16, 16))
     with pytest.raises(ValueError, match="model must be one of"):
         fitting.recover(image, image, model="affine")
-    with pytest.raises(ValueError, match="pass velocity="):
+    with pytest.raises(ValueError, match=r"pass fitting.Exposure\(velocity=...\)"):
         fitting.recover(image, image, model="exposure")
-    with pytest.raises(ValueError, match="needs ids="):
+    with pytest.raises(ValueError, match=r"pass fitting.MotionIds\(ids=...\)"):
         fitting.recover(image, image, model="motion_ids")
+    with pytest.raises(ValueError, match=r"ids must have shape \(1, 1, 16, 16\)"):
+        fitting.recover(image, image, model=fitting.MotionIds(np.zeros((1, 1, 4, 4), dtype=int)))
+    with pytest.raises(ValueError, match="boundary must be"):
+        fitting.MotionIds(np.zeros((1, 1, 16, 16), dtype=int), boundary=-1)
+    with pytest.raises(ValueError, match="grid must be"):
+        fitting.Tiles(grid=(0, 3))
+    with pytest.raises(ValueError, match="family must be one of"):
+        fitting.Shutter(velocity=(1.0, 0.0), family="cosine")
     with pytest.raises(ValueError, match="solver must be one of 'lbfgs', 'adam'; got 'lm'"):
         fitting.recover(image, image, model="global", solver="lm")
     with pytest.raises(ValueError, match="levels must be <= 2"):

@@ -66,7 +66,7 @@ def test_select_model_picks_layers_for_an_object_over_a_still_background(square)
 def test_exposure_through_the_scatter_within_one_percent(square):
     """The scatter leaves out the pixels its fill guesses (behind the moving square); the
     reconstruction filter and the gather are 5-20 % off on such scenes."""
-    result = fitting.recover(square.color, square.target, depth=square.depth, model="exposure", method="scatter", velocity=square.velocity / 0.6)
+    result = fitting.recover(square.color, square.target, depth=square.depth, model=fitting.Exposure(velocity=square.velocity / 0.6), method="scatter")
     assert abs(result.params["exposure"] - 0.6) < 0.006, result.params
     assert result.converged
 
@@ -102,8 +102,8 @@ _PROBLEMS = {
     "global gather": lambda: (scenes.translation(32, (3.0, -1.5))[0], dict(model="global", method="gather")),
     "global reconstruct": lambda: (scenes.translation(32, (2.5, 1.0))[0], dict(model="global")),
     "layers": lambda: (_object_over_background(32, (3.0, 1.5)), dict(model="layers", method="gather")),
-    "exposure scatter": lambda: (_object_over_background(32, (3.0, 1.5)), dict(model="exposure", method="scatter", velocity="true / 0.6")),
-    "motion_ids": lambda: (scenes.two_objects(32)[0], dict(model="motion_ids", method="gather", ids="layer ids")),
+    "exposure scatter": lambda: (_object_over_background(32, (3.0, 1.5)), dict(model="exposure", method="scatter")),
+    "motion_ids": lambda: (scenes.two_objects(32)[0], dict(model="motion_ids", method="gather")),
 }
 
 
@@ -113,10 +113,10 @@ def test_torch_and_jax_reach_the_same_parameters(problem):
     """The default solver is one loop for both frameworks: the parameters agree within 1e-3
     relative (or 1e-3 px where a value is near 0)."""
     buffers, options = _PROBLEMS[problem]()
-    if options.get("velocity") == "true / 0.6":
-        options["velocity"] = buffers.velocity / 0.6
-    if options.get("ids") == "layer ids":
-        options["ids"] = scenes.layer_ids(buffers)
+    if options["model"] == "exposure":
+        options["model"] = fitting.Exposure(velocity=buffers.velocity / 0.6)
+    if options["model"] == "motion_ids":
+        options["model"] = fitting.MotionIds(scenes.layer_ids(buffers))
     found = {}
     for backend in ("torch", "jax"):
         with warnings.catch_warnings():
@@ -125,3 +125,13 @@ def test_torch_and_jax_reach_the_same_parameters(problem):
     for name, value in found["torch"].params.items():
         np.testing.assert_allclose(found["jax"].params[name], value, rtol=1e-3, atol=1e-3, err_msg=name)
     assert found["torch"].converged == found["jax"].converged
+
+
+def test_a_model_object_carries_its_options_and_a_name_is_its_defaults(square):
+    """fitting.Layers(ratio=...) is used as given and left unchanged; "layers" is Layers()."""
+    model = fitting.Layers(ratio=1.5)
+    by_object = fitting.recover(square.color, square.target, depth=square.depth, model=model, method="gather", search=False, init={"palette": [[3.0, 1.5], [0.1, 0.0]]})
+    by_name = fitting.recover(square.color, square.target, depth=square.depth, model="layers", method="gather", search=False, init={"palette": [[3.0, 1.5], [0.1, 0.0]]})
+    assert model.depths == () and by_object.model == by_name.model == "layers"
+    np.testing.assert_allclose(by_object.params["palette"], by_name.params["palette"])
+    assert by_object.params["depths"] == pytest.approx([2.0, 10.0])
