@@ -18,7 +18,8 @@ cannot tell +v from -v. A fit that raises is kept as a row with its message, err
 `converged` is the fit's own `converged` attribute where `FitResult` has one ("n/a" otherwise).
 
 Which fits, and the cost: `global` and `camera` fit every method of `fitting._recover.METHODS` (reconstruct,
-gather, and scatter where it exists); every other model fits only its default method (recover's
+gather, and scatter where it exists; the non-default ones on the first backend only, torch:
+`--every-method-backends torch,jax` for both); every other model fits only its default method (recover's
 `DEFAULT_METHODS` where it has them, else reconstruct: what `recover` takes when given no method);
 rotation always goes through the arc scatter (method "arc"). The model's data (ids, the known
 velocity, the still background) goes to `recover` as keywords where it takes them, else on the model
@@ -117,11 +118,14 @@ def plan(
     methods: Iterable[str] | None = None,
     noise: Sequence[float] = (0.0, NOISE_SIGMA),
     noisy_backends: Sequence[str] | None = None,
+    every_method_backends: Sequence[str] | None = None,
 ) -> list[dict[str, Any]]:
     """The fits `evaluate` runs: dicts of case, model, method, noise, backend (see the module
     docstring). Noisy fits (noise > 0) go through each model's default method (`default_method`) and
-    `noisy_backends` only (default: the first of `backends`)."""
+    `noisy_backends` only (default: the first of `backends`); the other methods of the models that
+    fit every method run on `every_method_backends` only (default: the first of `backends`)."""
     noisy_backends = tuple(backends[:1]) if noisy_backends is None else tuple(noisy_backends)
+    every_method_backends = tuple(backends[:1]) if every_method_backends is None else tuple(every_method_backends)
     methods = None if methods is None else list(methods)
     available = _models()
     wanted_models = None if models is None else set(models)
@@ -142,7 +146,13 @@ def plan(
                 model_methods = chosen if model in ALL_METHODS_MODELS else [noisy_method]
             for sigma in noise:
                 for method in model_methods if sigma == 0 else [noisy_method]:
-                    for backend in backends if sigma == 0 else [b for b in backends if b in noisy_backends]:
+                    if sigma > 0:
+                        method_backends = [b for b in backends if b in noisy_backends]
+                    elif method != noisy_method:
+                        method_backends = [b for b in backends if b in every_method_backends]
+                    else:
+                        method_backends = list(backends)
+                    for backend in method_backends:
                         fits.append({"case": case, "model": model, "method": method, "noise": float(sigma), "backend": backend})
     return fits
 
@@ -289,6 +299,7 @@ def evaluate(
     methods: Iterable[str] | None = None,
     noise: Sequence[float] = (0.0, NOISE_SIGMA),
     noisy_backends: Sequence[str] | None = None,
+    every_method_backends: Sequence[str] | None = None,
     progress: bool = True,
 ) -> list[dict[str, Any]]:
     """One row per (case, noise, model, method, backend) fit (see the module docstring and `plan`).
@@ -299,7 +310,7 @@ def evaluate(
     from tqdm import tqdm
 
     cases = family() if cases is None else list(cases)
-    fits = plan(cases, backends=backends, models=models, methods=methods, noise=noise, noisy_backends=noisy_backends)
+    fits = plan(cases, backends=backends, models=models, methods=methods, noise=noise, noisy_backends=noisy_backends, every_method_backends=every_method_backends)
     rows = []
     with tqdm(total=len(fits), desc="held-out fits", unit="fit", disable=not progress, file=sys.stderr) as bar:
         for fit in fits:
@@ -503,6 +514,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--methods", default=None, help="comma-separated subset of fitting._recover.METHODS (default: all)")
     parser.add_argument("--no-noise", action="store_true", help="noise-free fits only")
     parser.add_argument("--noisy-backends", default=None, help="comma-separated backends of the noisy fits (default: the first of --backends)")
+    parser.add_argument("--every-method-backends", default=None, help="comma-separated backends of the non-default methods of global and camera (default: the first of --backends)")
     parser.add_argument("--json", default="docs/heldout.json", help="where to write rows and summary (default docs/heldout.json)")
     parser.add_argument("--write-benchmarks", action=argparse.BooleanOptionalAction, default=True, help="replace this run's section of --benchmarks (default on)")
     parser.add_argument("--benchmarks", default="BENCHMARKS.md", help="the Markdown file of --write-benchmarks (default BENCHMARKS.md)")
@@ -519,7 +531,7 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     cases = family(args.cases, args.size)
     render_seconds = time.perf_counter() - start
-    rows = evaluate(cases, backends=backends, models=None if args.models is None else args.models.split(","), methods=None if args.methods is None else args.methods.split(","), noise=noise, noisy_backends=None if args.noisy_backends is None else tuple(args.noisy_backends.split(",")), progress=not args.no_progress)
+    rows = evaluate(cases, backends=backends, models=None if args.models is None else args.models.split(","), methods=None if args.methods is None else args.methods.split(","), noise=noise, noisy_backends=None if args.noisy_backends is None else tuple(args.noisy_backends.split(",")), every_method_backends=None if args.every_method_backends is None else tuple(args.every_method_backends.split(",")), progress=not args.no_progress)
     seconds = time.perf_counter() - start
     summary = summarize(rows)
     kinds = ", ".join(f"{sum(c.kind == k for c in cases)} {k}" for k in ("objects", "pan", "rotation", "zoom"))

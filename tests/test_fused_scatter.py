@@ -317,6 +317,6 @@ def test_fitting_rotation_with_forward_mode_jacobians_takes_the_tensor_ops():
 
     scene, _, _ = scenes.propeller(16, 0.5)
     result = fitting.recover(
-        scene.color, scene.target, depth=scene.depth, model="rotation", background=scene.background, backend="jax", solver="lm", jac="fwd", iterations=1
+        scene.color, scene.target, depth=scene.depth, model=fitting.Rotation(background=scene.background), backend="jax", solver="lm", jac="fwd", iterations=1
     )
     assert np.isfinite(result.params["angle"])

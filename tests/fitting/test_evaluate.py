@@ -132,23 +132,27 @@ def test_error_of_each_model():
 
 
 def test_the_plan_follows_the_models_and_methods_present(cases):
-    """global through every method; other models through their default; noise on the default method
-    and the first backend; models and methods that fitting lacks are skipped, those it gains come in."""
+    """global and camera through every method (the non-default ones on the first backend only), other
+    models through their default; noise on the default method and the first backend; models and
+    methods that fitting lacks are skipped, those it gains come in."""
     fits = evaluate.plan(cases)
     methods = tuple(_recover.METHODS)
-    pan = [f for f in fits if f["case"].kind == "pan"]
-    assert len(pan) == 8 * (2 * len(methods) + 1)
-    assert {f["method"] for f in pan if f["noise"] == 0} == set(methods)
+    defaults = getattr(_recover, "DEFAULT_METHODS", {})
+    for kind, model, count in (("pan", "global", 8), ("zoom", "camera", 6)):
+        mine = [f for f in fits if f["case"].kind == kind]
+        assert len(mine) == count * (len(methods) + 2), kind  # every method on torch, the default on JAX too, one noisy
+        assert {f["method"] for f in mine if f["noise"] == 0} == set(methods)
+        assert {f["method"] for f in mine if f["backend"] == "jax"} == {defaults.get(model, methods[0])}
     noisy = [f for f in fits if f["noise"] > 0]
     assert {f["backend"] for f in noisy} == {"torch"}
     for f in noisy:  # the default method: what recover takes without one
-        assert f["method"] == ("arc" if f["model"] == "rotation" else getattr(_recover, "DEFAULT_METHODS", {}).get(f["model"], methods[0])), f["model"]
-    assert [f["method"] for f in noisy if f["model"] == "global"] == ["reconstruct"] * 8
+        assert f["method"] == ("arc" if f["model"] == "rotation" else defaults.get(f["model"], methods[0])), f["model"]
+    assert [f["method"] for f in noisy if f["model"] == "global"] == [defaults.get("global", methods[0])] * 8
     assert {f["method"] for f in fits if f["model"] == "rotation"} == {"arc"}
     objects_models = {f["model"] for f in fits if f["case"].kind == "objects"}
     assert objects_models == {m for m in ("motion_ids", "layers", "exposure") if m in fitting.MODELS}
-    per_case_models = sum(len([m for m in evaluate.KIND_MODELS[c.kind] if m in fitting.MODELS]) for c in cases)
-    assert len(fits) == len(pan) + 3 * (per_case_models - 8)  # 2 backends noise-free + 1 noisy
+    others = sum(len([m for m in evaluate.KIND_MODELS[c.kind] if m in fitting.MODELS]) for c in cases if c.kind in ("objects", "rotation"))
+    assert len(fits) == 8 * (len(methods) + 2) + 6 * (len(methods) + 2) + 3 * others  # 2 backends noise-free + 1 noisy
     only = evaluate.plan(cases[:2], backends=("jax",), models=["global"], methods=["gather"], noise=(0.0,))
     assert [(f["case"].name, f["model"], f["method"], f["backend"]) for f in only] == [("pan-01", "global", "gather", "jax")]
     with pytest.raises(ValueError, match="unknown method"):
