@@ -66,11 +66,11 @@ def _accuracy(size: int, far: float, noise: float) -> list[dict[str, Any]]:
             r = fitting.recover(s.color, s.target, depth=s.depth, model="global", backend=backend, solver=solver, method="gather", samples=15)
             rows.append(_row("global gather noise-free", r, r.params["velocity"], velocity, _up_to_sign(r.params["velocity"], velocity)))
     for backend, solver in (("torch", "lbfgs"), ("jax", "dogleg")):
-        r = fitting.recover(s.color, s.target, depth=s.depth, model="global", backend=backend, solver=solver, iterations=12)
+        r = fitting.recover(s.color, s.target, depth=s.depth, model="global", method="reconstruct", backend=backend, solver=solver, iterations=12)
         rows.append(_row("global reconstruct noise-free", r, r.params["velocity"], velocity, _up_to_sign(r.params["velocity"], velocity)))
     noisy = s.target + np.random.default_rng(0).normal(scale=noise, size=s.target.shape)
     for backend, solver in (("torch", "lbfgs"), ("jax", "dogleg")):
-        r = fitting.recover(s.color, noisy, depth=s.depth, model="global", backend=backend, solver=solver, iterations=12)
+        r = fitting.recover(s.color, noisy, depth=s.depth, model="global", method="reconstruct", backend=backend, solver=solver, iterations=12)
         rows.append(_row(f"global reconstruct noise {noise}", r, r.params["velocity"], velocity, _up_to_sign(r.params["velocity"], velocity)))
     # Sign: truth with x < 0, box (canonical sign) against LinearRamp(0.8) (true sign).
     flipped = (-3.0, 1.5)
@@ -128,7 +128,7 @@ def _timing(timing_size: int) -> list[dict[str, Any]]:
             r = fitting.recover(big.color, big.target, depth=big.depth, model="global", backend=backend, solver=solver, method="gather", samples=15)
             rows.append(_row(f"timing {timing_size}x{timing_size} global gather", r, r.params["velocity"], velocity, _up_to_sign(r.params["velocity"], velocity)))
     for backend, solver in (("torch", "lbfgs"), ("jax", "dogleg")):
-        r = fitting.recover(big.color, big.target, depth=big.depth, model="global", backend=backend, solver=solver, iterations=10)
+        r = fitting.recover(big.color, big.target, depth=big.depth, model="global", method="reconstruct", backend=backend, solver=solver, iterations=10)
         rows.append(_row(f"timing {timing_size}x{timing_size} global reconstruct", r, r.params["velocity"], velocity, _up_to_sign(r.params["velocity"], velocity)))
     return rows
 

@@ -41,7 +41,7 @@ def test_global_velocity_through_the_reconstruction_filter():
     """The default op (seed 000's filter): its taps span S / (S + 1) of the exposure, which recover
     compensates, so the velocity found is the scene's (0.1 px)."""
     s, _, truth = scenes.translation(24, (2.0, 1.0))
-    result = fitting.recover(s.color, s.target, depth=s.depth, model="global", solver="lbfgs", iterations=12, samples=7)
+    result = fitting.recover(s.color, s.target, depth=s.depth, model="global", method="reconstruct", solver="lbfgs", iterations=12, samples=7)
     assert _up_to_sign(result.params["velocity"], truth["velocity"]) < 0.1, result.params
 
 
