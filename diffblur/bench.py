@@ -351,16 +351,21 @@ class _JaxRunner:
 # the sweep
 
 
-def _machine(load_before: tuple[float, float, float]) -> dict:
+def cpu_model() -> str:
+    """The processor's name (/proc/cpuinfo's model name where there is one)."""
     model = platform.processor() or platform.machine()
     try:
         with open("/proc/cpuinfo") as f:
             for line in f:
                 if line.startswith("model name"):
-                    model = line.split(":", 1)[1].strip()
-                    break
+                    return line.split(":", 1)[1].strip()
     except OSError:
         pass
+    return model
+
+
+def _machine(load_before: tuple[float, float, float]) -> dict:
+    model = cpu_model()
     versions = {"python": platform.python_version(), "numpy": np.__version__}
     for name in ("torch", "jax", "jaxlib", "kornia", "numba"):
         module = sys.modules.get(name)

@@ -456,15 +456,9 @@ def write_section(path: str | os.PathLike, text: str, *, label: str | None = Non
 
 
 def _machine() -> dict[str, Any]:
-    model = platform.processor() or ""
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    model = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
+    from diffblur.bench import cpu_model
+
+    model = cpu_model()
     try:
         visible = len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - not Linux
