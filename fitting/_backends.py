@@ -44,16 +44,21 @@ class TorchAdapter:
     def einsum(self, spec: str, *xs: Any) -> Any:
         return self.torch.einsum(spec, *xs)
 
-    def value_and_grad(self, loss: Callable[[Any], Any]) -> Callable[[np.ndarray], tuple[float, np.ndarray]]:
-        """NumPy y -> (loss(y), dloss/dy), float64, through autograd."""
+    def value_and_grad(self, loss: Callable[..., Any], *args: Any) -> Callable[[np.ndarray], tuple[float, np.ndarray]]:
+        """NumPy y -> (loss(y, *args), its gradient in y), float64, through autograd."""
 
         def evaluate(y: np.ndarray) -> tuple[float, np.ndarray]:
             t = self.torch.tensor(np.asarray(y, dtype=np.float64), dtype=self.dtype, requires_grad=True)
-            value = loss(t)
+            value = loss(t, *args)
             (grad,) = self.torch.autograd.grad(value, t)
             return float(value.detach()), grad.detach().cpu().numpy().astype(np.float64)
 
         return evaluate
+
+    def run(self, f: Callable[..., Any], *args: Any) -> Any:
+        """f(*args) without recording a gradient."""
+        with self.torch.no_grad():
+            return f(*args)
 
     def compiled(self, f: Callable[[Any], Any]) -> Callable[[Any], Any]:
         """f itself: PyTorch runs eagerly."""
@@ -75,6 +80,7 @@ class JaxAdapter:
         self.xp = jnp
         self.ops = jax_impl
         self.dtype = dtype
+        _register_pytrees()
 
     def array(self, x: Any) -> Any:
         return self.xp.asarray(np.asarray(x, dtype=np.float64), dtype=self.dtype)
@@ -97,24 +103,77 @@ class JaxAdapter:
     def einsum(self, spec: str, *xs: Any) -> Any:
         return self.xp.einsum(spec, *xs)
 
-    def value_and_grad(self, loss: Callable[[Any], Any]) -> Callable[[np.ndarray], tuple[float, np.ndarray]]:
-        """NumPy y -> (loss(y), dloss/dy), float64: reverse mode (the fused kernels' custom_vjp),
-        compiled once and reused for every evaluation."""
-        import equinox as eqx
+    def __eq__(self, other: object) -> bool:
+        # An adapter is static data of the compiled functions (`run`): equal adapters share them.
+        return isinstance(other, JaxAdapter) and other.dtype == self.dtype
 
-        compiled = eqx.filter_jit(self.jax.value_and_grad(loss))
+    def __hash__(self) -> int:
+        return hash((self.name, self.dtype))
+
+    def value_and_grad(self, loss: Callable[..., Any], *args: Any) -> Callable[[np.ndarray], tuple[float, np.ndarray]]:
+        """NumPy y -> (loss(y, *args), its gradient in y), float64: reverse mode (the fused kernels'
+        custom_vjp), compiled once per `loss` and per static part and shapes of the arguments (see
+        `run`), so that every level, pass and fit of the same size reuses it."""
+        compiled = _compiled(loss, gradient=True)
 
         def evaluate(y: np.ndarray) -> tuple[float, np.ndarray]:
-            value, grad = compiled(self.array(y))
+            value, grad = compiled(self.array(y), *args)
             return float(value), np.asarray(grad, dtype=np.float64)
 
         return evaluate
+
+    def run(self, f: Callable[..., Any], *args: Any) -> Any:
+        """f(*args) compiled (eqx.filter_jit): arrays are traced, everything else (the adapter, a
+        context's sizes and options, the model's static options) is static, so a module-level `f`
+        compiles once per static part and shapes and is reused across fits. Run op by op instead,
+        every small op of the scatter would compile on its own."""
+        return _compiled(f, gradient=False)(*args)
 
     def compiled(self, f: Callable[[Any], Any]) -> Callable[[Any], Any]:
         """f under eqx.filter_jit (compiled once per input shape)."""
         import equinox as eqx
 
         return eqx.filter_jit(f)
+
+
+#: eqx.filter_jit of each function `JaxAdapter.run` and `value_and_grad` were given, by function.
+_COMPILED: dict[tuple[Callable[..., Any], bool], Callable[..., Any]] = {}
+
+
+def _compiled(f: Callable[..., Any], *, gradient: bool) -> Callable[..., Any]:
+    if (f, gradient) not in _COMPILED:
+        import equinox as eqx
+        import jax
+
+        _COMPILED[(f, gradient)] = eqx.filter_jit(jax.value_and_grad(f) if gradient else f)
+    return _COMPILED[(f, gradient)]
+
+
+_REGISTERED: list[bool] = []
+
+
+def _register_pytrees() -> None:
+    """Let JAX trace the fitting's level contexts: arrays are leaves, the adapter, sizes and options
+    static (`fitting._models.Context`, `LayerStack`)."""
+    if _REGISTERED:
+        return
+    import jax
+
+    from fitting._models import Context, LayerStack
+
+    def flatten_context(c: Context) -> tuple[tuple, tuple]:
+        return (c.color, c.depth, c.target, c.extras), (c.be, c.height, c.width, c.scale, tuple(sorted(c.options.items())))
+
+    def unflatten_context(aux: tuple, children: tuple) -> Context:
+        be, height, width, scale, options = aux
+        color, depth, target, extras = children
+        return Context(be, color, depth, target, height, width, scale, dict(options), extras)
+
+    jax.tree_util.register_pytree_node(Context, flatten_context, unflatten_context)
+    jax.tree_util.register_pytree_node(
+        LayerStack, lambda s: ((s.sources, s.depth, s.fill, s.velocity), s.ids), lambda ids, children: LayerStack(*children[:3], ids, children[3])
+    )
+    _REGISTERED.append(True)
 
 
 BACKENDS = ("torch", "jax")

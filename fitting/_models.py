@@ -108,18 +108,136 @@ def covered(ctx: Context, velocity: Any) -> np.ndarray:
     the target shows what the sharp frame hides behind a moving object. The fill's guess biases a fit
     (an object's speed comes out 10 to 15 % short on an object over a textured background), so the
     scatter's residual leaves such pixels out."""
-    be = ctx.be
-    ones = be.array(np.ones((1, 1, ctx.height, ctx.width)))
+    return (ctx.be.numpy(ctx.be.run(_hidden_share, ctx, velocity)) <= 1.0 - COVERED).astype(np.float64)
+
+
+def _hidden_share(ctx: Context, velocity: Any) -> Any:
+    """(1, 1, h, w) the share of each pixel's exposure that the fill or a hidden layer shows (see
+    `covered`)."""
+    if ctx.extras.get("layers") is not None:
+        return layered_scatter(ctx, velocity, hidden_share=True)
+    ones = ctx.depth * 0.0 + 1.0
     o = ctx.options
-    alpha = be.ops.bezier_scatter(ones, ctx.depth, -velocity, velocity, degree=1, samples=o["scatter_samples"], shutter=o["shutter"], background=ones * 0.0)
-    return (be.numpy(alpha) >= COVERED).astype(np.float64)
+    return 1.0 - ctx.be.ops.bezier_scatter(ones, ctx.depth, -velocity, velocity, degree=1, samples=o["scatter_samples"], shutter=o["shutter"], background=ones * 0.0)
 
 
-def render_batch(ctx: Context, velocities: list) -> Any:
-    """(n, C, h, w): the configured op on n velocity fields (1, 2, h, w) at once, the images repeated."""
-    n = len(velocities)
+@dataclass
+class LayerStack:
+    """A level's depth layers for the layered scatter (`layered_scatter`), the nearest first.
+
+    sources: (L, C + 2, h, w) per layer [colour x mask, mask, nearer], mask 1 on the layer's pixels
+    and nearer 1 on the pixels of nearer layers (where the layer may be hidden); depth: (L, 1, h, w)
+    the depth with every other layer's pixels set to the layer's median (each layer is scattered
+    alone, with a depth test among its own pixels only); fill: (1, C, h, w) the farthest layer's
+    colours extended by push-pull over the pixels nearer layers hide; ids: the model's ID of each
+    layer, the nearest first; velocity: (L, 2, h, w) a known velocity field extended from each
+    layer's pixels over the image by push-pull (`Exposure`), or None."""
+
+    sources: Any
+    depth: Any
+    fill: Any
+    ids: tuple[int, ...]
+    velocity: Any = None
+
+
+def _pool(x: np.ndarray) -> np.ndarray:
+    """Sums over 2 x 2 blocks, an odd side padded with zeros (bezier_scatter's `_pool`)."""
+    x = np.pad(x, ((0, 0), (0, 0), (0, x.shape[-2] % 2), (0, x.shape[-1] % 2)))
+    return (x[..., 0::2, 0::2] + x[..., 0::2, 1::2]) + (x[..., 1::2, 0::2] + x[..., 1::2, 1::2])
+
+
+def _upsample(x: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Bilinear upsampling by 2 between pixel centres, the border repeated (bezier_scatter's)."""
+    for axis, size in ((-2, height), (-1, width)):
+        before = np.concatenate([np.take(x, [0], axis), np.take(x, np.arange(x.shape[axis] - 1), axis)], axis)
+        after = np.concatenate([np.take(x, np.arange(1, x.shape[axis]), axis), np.take(x, [-1], axis)], axis)
+        doubled = np.stack([0.75 * x + 0.25 * before, 0.75 * x + 0.25 * after], axis=axis)
+        shape = list(x.shape)
+        shape[axis] *= 2
+        x = np.take(doubled.reshape(shape), np.arange(size), axis)
+    return x
+
+
+def push_pull(color: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """`color` (B, C, H, W) extended from the pixels where `known` (B, 1, H, W) is 1 over the
+    others by bezier_scatter's push-pull (its fill="still"; `diffblur._reference_scatter.still_fill`
+    is the loop-based oracle): NumPy, for the fits' constant data."""
+    levels = [(color * known, known)]
+    while max(levels[-1][1].shape[-2:]) > 1:
+        levels.append(tuple(_pool(v) for v in levels[-1]))
+    total, weight = levels[-1]
+    estimate = total / np.where(weight > 0, weight, 1.0)
+    for total, weight in reversed(levels[:-1]):
+        mean = np.where(weight > 0, total / np.where(weight > 0, weight, 1.0), 0.0)
+        share = np.minimum(weight, 1.0)
+        estimate = share * mean + (1.0 - share) * _upsample(estimate, *weight.shape[-2:])
+    return np.where(levels[-1][1] > 0, estimate, color)
+
+
+def layer_stack(be: Any, color: np.ndarray, depth: np.ndarray, ids: np.ndarray, velocity: np.ndarray | None = None) -> LayerStack | None:
+    """The `LayerStack` of an ID map, its IDs ordered by median depth (the nearest first), with a
+    known (1, 2, H, W) `velocity` extended from each layer over the image; None when the map holds
+    one ID."""
+    present = [int(k) for k in np.unique(ids)]
+    if len(present) < 2:
+        return None
+    medians = {k: float(np.median(depth[ids == k])) for k in present}
+    order = tuple(sorted(present, key=lambda k: (medians[k], k)))
+    masks = [(ids == k).astype(np.float64) for k in order]
+    sources, depths = [], []
+    nearer = np.zeros_like(masks[0])
+    for k, mask in zip(order, masks):
+        sources.append(np.concatenate([color * mask, mask, nearer], axis=1))
+        depths.append(np.where(mask > 0, depth, medians[k]))
+        nearer = nearer + mask
+    fill = be.array(push_pull(color, masks[-1]))
+    known = None if velocity is None else be.array(np.concatenate([push_pull(velocity, mask) for mask in masks]))
+    return LayerStack(be.array(np.concatenate(sources)), be.array(np.concatenate(depths)), fill, order, known)
+
+
+def layered_scatter(ctx: Context, motion: Any, *, hidden_share: bool = False) -> Any:
+    """Seed 003's scatter of linear motion, one depth layer at a time, composited nearest first.
+
+    `motion`: (n L, 2, h, w) per candidate a velocity field for each of the L layers of
+    ctx.extras["layers"] (the nearest first), each over the whole image. Every layer's pixels are
+    scattered alone, premultiplied: its colour C_k and its coverage A_k (the fraction of the exposure
+    it covers a pixel). The composite C_0 + (1 - A_0) (C_1 + (1 - A_1) (... + fill)) then puts a
+    nearer layer in front of a farther one wherever their paths cross, which one scatter of every
+    pixel cannot: seed 003 has no depth write, so there two moving objects are averaged. For one
+    layer moving over a still one this is the plain scatter (the still layer's coverage is its mask).
+
+    Returns (n, C, h, w); with hidden_share, (n, 1, h, w) the share of each pixel's exposure that
+    shows what the sharp frame hides (the fill, or a layer where a nearer one covered it at t = 0).
+    """
+    be, o = ctx.be, ctx.options
+    stack: LayerStack = ctx.extras["layers"]
+    layers = len(stack.ids)
+    n = motion.shape[0] // layers
+    channels = stack.fill.shape[1]
+    sources = be.concat([stack.sources] * n)
+    depth = be.concat([stack.depth] * n)
+    zero = sources * 0.0
+    # background=0: what no path covers adds nothing, so each layer comes out premultiplied.
+    splatted = be.ops.bezier_scatter(sources, depth, -motion, motion, degree=1, samples=o["scatter_samples"], shutter=o["shutter"], background=zero)
+    splatted = splatted.reshape(n, layers, channels + 2, ctx.height, ctx.width)
+    out, through, hidden = 0.0, 1.0, 0.0
+    for k in range(layers):
+        out = out + through * splatted[:, k, :channels]
+        if k < layers - 1:
+            hidden = hidden + through * splatted[:, k, channels + 1 : channels + 2]
+        through = through * (1.0 - splatted[:, k, channels : channels + 1])
+    if hidden_share:
+        return hidden + through
+    return out + through * stack.fill
+
+
+def render_batch(ctx: Context, motions: list) -> Any:
+    """(n, C, h, w): the configured op on n models' motions (`Model.motion`) at once, the images repeated."""
+    n = len(motions)
+    if ctx.extras.get("layers") is not None:
+        return layered_scatter(ctx, ctx.be.concat(motions))
     batch = Context(ctx.be, ctx.be.concat([ctx.color] * n), ctx.be.concat([ctx.depth] * n), ctx.target, ctx.height, ctx.width, ctx.scale, ctx.options, ctx.extras)
-    return _blur(batch, ctx.be.concat(velocities))
+    return _blur(batch, ctx.be.concat(motions))
 
 
 class Model:
@@ -130,6 +248,11 @@ class Model:
     learning_rate: ClassVar[float] = 0.1
     #: Whether the blur depends on the sign of the velocity only through the shutter.
     sign_ambiguous: ClassVar[bool] = True
+
+    def static_key(self) -> tuple:
+        """The options `render`, `velocity`, `motion` and `prior` read (the rest only shape the
+        inputs): models with equal keys share compiled functions. None by default."""
+        return ()
 
     def inputs(self, shape: tuple[int, ...], depth: np.ndarray, depth_given: bool) -> dict[str, np.ndarray]:
         """The model's own full-resolution arrays for the pyramid ("velocity", "ids", "mask",
@@ -143,10 +266,24 @@ class Model:
     def velocity(self, p: dict, ctx: Context) -> Any:
         raise NotImplementedError
 
-    #: Whether `render` is the configured op on `velocity` (so candidates render in one batch).
+    #: Whether `render` is the configured op on `motion` (so candidates render in one batch).
     batched = True
+    #: Whether the model gives each depth layer a velocity field of its own (`layer_motion`), so that
+    #: the scatter composites the layers (`layered_scatter`).
+    layered = False
+
+    def layer_motion(self, p: dict, ctx: Context) -> Any:
+        """(L, 2, h, w): a velocity field per layer of ctx.extras["layers"], the nearest first."""
+        raise NotImplementedError
+
+    def motion(self, p: dict, ctx: Context) -> Any:
+        """What the op receives: the velocity field, or one per layer where the scatter composites
+        depth layers."""
+        return self.layer_motion(p, ctx) if ctx.extras.get("layers") is not None else self.velocity(p, ctx)
 
     def render(self, p: dict, ctx: Context) -> Any:
+        if ctx.extras.get("layers") is not None:
+            return layered_scatter(ctx, self.layer_motion(p, ctx))
         return _blur(ctx, self.velocity(p, ctx))
 
     def prior(self, p: dict, ctx: Context) -> list:
@@ -282,8 +419,13 @@ class Exposure(Model):
     def init(self, ctx, init):
         return {"exposure": _start(init, "exposure", 0.5)}
 
+    layered = True
+
     def velocity(self, p, ctx):
         return ctx.extras["velocity"] * p["exposure"]
+
+    def layer_motion(self, p, ctx):
+        return ctx.extras["layers"].velocity * p["exposure"]
 
     def report(self, p, symmetric):
         e = float(p["exposure"])
@@ -335,6 +477,9 @@ class Shutter(Model):
         self.known = velocity
         self.family = family
         self.fit_exposure = fit_exposure
+
+    def static_key(self):
+        return (self.family, self.fit_exposure)
 
     def inputs(self, shape, depth, depth_given):
         return {"velocity": known_velocity(self.known, shape, self.name)}
@@ -389,8 +534,14 @@ class MotionIds(Model):
         start = _start(init, "palette", np.tile(DEFAULT_VELOCITY, (count, 1)))
         return {"palette": np.stack([nudge(v) for v in start.reshape(count, 2)])}
 
+    layered = True
+
     def velocity(self, p, ctx):
         return ctx.be.ops.velocity_from_motion_ids(ctx.extras["ids"], p["palette"][None])
+
+    def layer_motion(self, p, ctx):
+        velocities = ctx.be.stack([p["palette"][k] for k in ctx.extras["layers"].ids])
+        return ctx.be.broadcast(velocities.reshape(-1, 2, 1, 1), (velocities.shape[0], 2, ctx.height, ctx.width))
 
     def rescale(self, p, factor, height, width):
         return {"palette": p["palette"] * factor}
@@ -656,6 +807,9 @@ class Tiles(Model):
             raise ValueError(f"grid must be (rows, columns) of at least 1 node each, got {grid!r}")
         self.grid = (int(grid[0]), int(grid[1]))
 
+    def static_key(self):
+        return self.grid
+
     def init(self, ctx, init):
         start = _start(init, "tiles", np.broadcast_to(np.reshape(DEFAULT_VELOCITY, (2, 1, 1)), (2, *self.grid)))
         return {"tiles": start.reshape(2, *self.grid)}
@@ -683,6 +837,9 @@ class Dense(Model):
 
     def __init__(self, tv_weight: float = 1e-3) -> None:
         self.tv_weight = checks.require_nonnegative_number("tv_weight", tv_weight)
+
+    def static_key(self):
+        return (self.tv_weight,)
 
     def init(self, ctx, init):
         if init and "velocity" in init:

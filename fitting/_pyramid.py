@@ -22,7 +22,7 @@ def _subsample(x: np.ndarray) -> np.ndarray:
 
 
 #: How each named array goes down one level.
-_HOW = {"color": "average", "target": "average", "background": "average", "velocity": "velocity", "depth": "subsample", "ids": "subsample", "mask": "subsample", "weight": "subsample"}
+_HOW = {"color": "average", "target": "average", "background": "average", "velocity": "velocity", "depth": "subsample", "ids": "subsample", "layer_ids": "subsample", "mask": "subsample", "weight": "subsample"}
 
 
 def pyramid(arrays: dict[str, np.ndarray | None], levels: int) -> list[dict[str, np.ndarray | None]]:

@@ -78,12 +78,12 @@ def _as_image(name: str, x: Any, channels: int | None = None) -> np.ndarray:
     return x
 
 
-def _flatten(p: dict[str, np.ndarray]) -> tuple[np.ndarray, list[tuple[str, tuple[int, ...]]]]:
-    spec = [(k, np.shape(v)) for k, v in p.items()]
+def _flatten(p: dict[str, np.ndarray]) -> tuple[np.ndarray, tuple[tuple[str, tuple[int, ...]], ...]]:
+    spec = tuple((k, tuple(np.shape(v))) for k, v in p.items())
     return np.concatenate([np.ravel(v) for v in p.values()]).astype(np.float64), spec
 
 
-def _unflatten(y: Any, spec: list[tuple[str, tuple[int, ...]]]) -> dict[str, Any]:
+def _unflatten(y: Any, spec: tuple[tuple[str, tuple[int, ...]], ...]) -> dict[str, Any]:
     out, start = {}, 0
     for name, shape in spec:
         size = int(np.prod(shape)) if shape else 1
@@ -101,8 +101,64 @@ def _auto_max_radius(speed: float, samples: int, size: int) -> float:
 
 def _scatter_points(speed: float) -> int:
     """The scatter's points per path for a level: one per half pixel of a path twice the start's
-    length (room for the speed to double), 8 to 48."""
-    return int(min(48, max(8, math.ceil(8.0 * speed) + 1)))
+    length (room for the speed to double), rounded up to a multiple of 8 (so that fits of one size
+    share their compiled functions in JAX), 8 to 48."""
+    return int(min(48, 8 * math.ceil(max(8, math.ceil(8.0 * speed) + 1) / 8)))
+
+
+class Traced:
+    """A model as static data of the compiled level functions (`_backends.JaxAdapter.run`): equal
+    when their class and `static_key()` are, which is all that `render`, `velocity`, `motion` and
+    `prior` read besides the level's context."""
+
+    def __init__(self, model: _models.Model) -> None:
+        self.model = model
+        self.key = (type(model), model.static_key())
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Traced) and other.key == self.key
+
+    def __hash__(self) -> int:
+        return hash(self.key)
+
+
+# The level's functions, module-level so that JAX compiles each once per static part and shapes.
+
+
+def _level_residuals(y: Any, ctx: _models.Context, traced: Traced, spec: tuple, crop: int, count: float) -> Any:
+    """The level's residual vector at flat parameters y: the weighted, cropped data residual over
+    sqrt(count), then the model's prior."""
+    p = _unflatten(y, spec)
+    data = ((traced.model.render(p, ctx) - ctx.target) * ctx.extras["weight"])[:, :, crop : ctx.height - crop, crop : ctx.width - crop].reshape(-1) / math.sqrt(count)
+    return ctx.be.concat([data, *traced.model.prior(p, ctx)])
+
+
+def _level_loss(y: Any, ctx: _models.Context, traced: Traced, spec: tuple, crop: int, count: float) -> Any:
+    r = _level_residuals(y, ctx, traced, spec, crop, count)
+    return (r * r).sum()
+
+
+def _velocity(p: dict, ctx: _models.Context, traced: Traced) -> Any:
+    return traced.model.velocity(p, ctx)
+
+
+def _motion(p: dict, ctx: _models.Context, traced: Traced) -> Any:
+    return traced.model.motion(p, ctx)
+
+
+def _render(p: dict, ctx: _models.Context, traced: Traced) -> Any:
+    return traced.model.render(p, ctx)
+
+
+def _candidate_errors(chunk: list[dict], ctx: _models.Context, traced: Traced, crop: int) -> Any:
+    """(n,) mean squared weighted, cropped data residual of each candidate of `chunk`."""
+    fit_model, be = traced.model, ctx.be
+    if fit_model.batched:
+        rendered = _models.render_batch(ctx, [fit_model.motion(p, ctx) for p in chunk])
+    else:
+        rendered = be.concat([fit_model.render(p, ctx) for p in chunk])
+    error = ((rendered - ctx.target) * ctx.extras["weight"])[:, :, crop : ctx.height - crop, crop : ctx.width - crop]
+    return (error * error).reshape(error.shape[0], -1).mean(1)
 
 
 def auto_levels(height: int, width: int, search_radius: float) -> int:
@@ -128,7 +184,7 @@ def _parameter_scale(fit_model: _models.Model, params: dict[str, np.ndarray], ct
         for sign in (1.0, -1.0):
             trial = y.copy()
             trial[i] += sign * h
-            fields.append(be.numpy(fit_model.velocity({k: be.array(v) for k, v in _unflatten(trial, spec).items()}, ctx)))
+            fields.append(be.numpy(be.run(_velocity, {k: be.array(v) for k, v in _unflatten(trial, spec).items()}, ctx, Traced(fit_model))))
         rms = float(np.sqrt(np.mean(((fields[0] - fields[1]) / (2 * h)) ** 2)))
         if rms > 1e-3:
             scale[i] = rms
@@ -146,13 +202,12 @@ def _losses(fit_model: _models.Model, ctx: _models.Context, candidates: list[dic
     crop = int(round(margin * ctx.scale))
     out = []
     for start in range(0, len(candidates), SEARCH_BATCH):
-        chunk = [{k: be.array(v) for k, v in c.items()} for c in candidates[start : start + SEARCH_BATCH]]
-        if fit_model.batched:
-            rendered = _models.render_batch(ctx, [fit_model.velocity(p, ctx) for p in chunk])
-        else:
-            rendered = be.concat([fit_model.render(p, ctx) for p in chunk])
-        error = be.numpy(((rendered - ctx.target) * ctx.extras["weight"])[:, :, crop : ctx.height - crop, crop : ctx.width - crop])
-        out.append(np.mean(error**2, axis=(1, 2, 3)))
+        chunk = candidates[start : start + SEARCH_BATCH]
+        # Every chunk as long as the first (the last one padded with its own last candidate), so that
+        # JAX compiles the search once.
+        size = min(len(candidates), SEARCH_BATCH)
+        padded = [{k: be.array(v) for k, v in c.items()} for c in chunk + [chunk[-1]] * (size - len(chunk))]
+        out.append(be.numpy(be.run(_candidate_errors, padded, ctx, Traced(fit_model), crop))[: len(chunk)])
     return np.concatenate(out)
 
 
@@ -272,8 +327,21 @@ def recover(
     arrays["weight"] = shared_weight * own.pop("weight", 1.0)
     arrays.update(own)
 
+    # The scatter composites depth layers (`_models.layered_scatter`) for the models with a velocity
+    # per layer: the model's IDs, or the depth buffer's layers for a known field.
+    layered = method == "scatter" and fit_model.layered and depth is not None
+    if layered:
+        arrays["layer_ids"] = arrays["ids"] if arrays["ids"] is not None else _models.depth_layers(z)[0]
     be = _backends.adapter(backend, dtype)
     pyramid = _pyramid.pyramid(arrays, levels)
+    stacks: dict[int, Any] = {}
+
+    def layers_of(level: int) -> Any:
+        """The level's `_models.LayerStack` (None unless the scatter composites layers), built once."""
+        if level not in stacks:
+            a = pyramid[level]
+            stacks[level] = _models.layer_stack(be, a["color"], a["depth"], a["layer_ids"], a["velocity"]) if layered else None
+        return stacks[level]
     palette_size = int(arrays["ids"].max()) + 1 if arrays["ids"] is not None else 0
     # The JAX ops' custom_vjp rules (the fused kernels) have reverse-mode gradients only: forward-mode
     # Jacobians (jac="fwd") are for the least-squares solvers alone.
@@ -286,26 +354,27 @@ def recover(
         for name in ("velocity", "mask", "background", "weight"):
             extras[name] = None if a[name] is None else be.array(a[name])
         extras["ids"] = None if a["ids"] is None else be.ints(a["ids"])
+        extras["layers"] = layers_of(level)
         radius = max_radius if max_radius is not None else _auto_max_radius(speed, samples, max(h, w))
         options = {"method": method, "samples": samples, "arc_samples": arc_samples, "shutter": window, "max_radius": radius, "jac": jac, "scatter_samples": _scatter_points(speed)}
         return _models.Context(be, be.array(a["color"]), be.array(a["depth"]), be.array(a["target"]), h, w, 0.5**level, options, extras)
 
+    traced = Traced(fit_model)
+
+    def as_arrays(params: dict[str, np.ndarray]) -> dict[str, Any]:
+        return {k: be.array(v) for k, v in params.items()}
+
     def speed_of(params: dict[str, np.ndarray], level: int) -> float:
         probe = context(level, 1.0)
-        return float(np.max(np.hypot(*be.numpy(fit_model.velocity({k: be.array(v) for k, v in params.items()}, probe))[0])))
+        return float(np.max(np.hypot(*be.numpy(be.run(_velocity, as_arrays(params), probe, traced))[0])))
 
-    def objective(ctx: _models.Context, spec: list) -> tuple[Callable, float]:
-        """The level's residual vector as a function of the flat parameters, and its pixel count."""
+    def objective(ctx: _models.Context, spec: tuple) -> tuple[Callable, tuple]:
+        """The level's residual vector as a function of the flat parameters, and the arguments that
+        `_level_residuals` and `_level_loss` take after them."""
         crop = int(round(margin * ctx.scale))
-        rows, cols = slice(crop, ctx.height - crop), slice(crop, ctx.width - crop)
         count = float(goal.shape[1] * (ctx.height - 2 * crop) * (ctx.width - 2 * crop))
-
-        def residuals(y):
-            p = _unflatten(y, spec)
-            data = ((fit_model.render(p, ctx) - ctx.target) * ctx.extras["weight"])[:, :, rows, cols].reshape(-1) / math.sqrt(count)
-            return be.concat([data, *fit_model.prior(p, ctx)])
-
-        return residuals, count
+        arguments = (ctx, traced, spec, crop, count)
+        return (lambda y: _level_residuals(y, *arguments)), arguments
 
     # Start values at full resolution, then down to the coarsest level.
     finest = context(0, 2.0)
@@ -343,11 +412,11 @@ def recover(
             ctx = context(level, speed_of(params, level))
             y0, spec = _flatten(params)
             if trust_coverage:
-                shown = _models.covered(ctx, fit_model.velocity({k: be.array(v) for k, v in params.items()}, ctx))
+                shown = _models.covered(ctx, be.run(_motion, as_arrays(params), ctx, traced))
                 ctx.extras["weight"] = be.array(pyramid[level]["weight"] * shown)
-            residuals, _ = objective(ctx, spec)
+            residuals, arguments = objective(ctx, spec)
             if solver == "lbfgs":
-                solved = _solvers.lbfgs_solve(be.value_and_grad(lambda y: (residuals(y) ** 2).sum()), y0, scale=_parameter_scale(fit_model, params, ctx), iterations=iterations, on_step=record, fixed=fixed)
+                solved = _solvers.lbfgs_solve(be.value_and_grad(_level_loss, *arguments), y0, scale=_parameter_scale(fit_model, params, ctx), iterations=iterations, on_step=record, fixed=fixed)
             elif backend == "torch":
                 solved = _solvers.torch_adam(be, residuals, y0, iterations=iterations, learning_rate=learning_rate, on_step=record)
             else:
@@ -356,7 +425,7 @@ def recover(
             if level > 0:
                 h, w = pyramid[level - 1]["color"].shape[2:]
                 params = fit_model.rescale(params, 2.0, h, w)
-        loss = float(np.sum(be.numpy(residuals(be.array(solved.y))) ** 2))
+        loss = float(be.numpy(be.run(_level_loss, be.array(solved.y), *arguments)))
         return params, ctx, residuals, solved.y, loss, solved
 
     best = fit_from(params)
@@ -384,8 +453,8 @@ def recover(
         params = fit_model.canonical(params)
     y, spec = _flatten(params)
     p_be = _unflatten(be.array(y), spec)
-    blurred = be.numpy(fit_model.render(p_be, ctx))
-    field_ = be.numpy(fit_model.velocity(p_be, ctx))
+    blurred = be.numpy(be.run(_render, p_be, ctx, traced))
+    field_ = be.numpy(be.run(_velocity, p_be, ctx, traced))
     # The same pixels and weights, with no blur at all: what the fit is measured against.
     crop = int(round(margin * ctx.scale))
     unblurred = (color - goal) * be.numpy(ctx.extras["weight"])
