@@ -62,7 +62,9 @@ def select_model(
     parameters always shave a little off it. Losses below `floor` (a mean squared error of 1e-5,
     about the renderers' own error on a translation) count as equal: there a gain is the solvers'
     convergence, not the model. The search stops after `patience` richer models in a row
-    that do not pay. `motion_ids` is a candidate only with `ids` (`fitting.MotionIds(ids)`), `layers`
+    that do not pay, except that `layers` is always tried when the depth has layers (a scene of
+    several moving depth layers explains little through the smaller models, which would stop the
+    search before it). `motion_ids` is a candidate only with `ids` (`fitting.MotionIds(ids)`), `layers`
     (a velocity per depth layer, `fitting.depth_layers`) only with `depth` that has more than one
     layer. With `ids`, every candidate leaves out the pixels within `boundary` pixels of a change of
     ID, so that all are scored on the same pixels. `background` goes to `rotation`
@@ -108,7 +110,7 @@ def select_model(
             else:
                 misses += 1
         table.append(row)
-        if misses >= patience:
+        if misses >= patience and "layers" not in order[order.index(name) + 1 :]:
             break
     chosen = fits[best]
     others = [r for r in table if r["model"] != best]

@@ -66,7 +66,7 @@ from typing import Any
 import numpy as np
 
 from diffblur.shutters import get_shutter
-from fitting.heldout import HELDOUT_SEED, NOISE_SIGMA, Case, family
+from fitting.heldout import DEVELOPMENT_SEED, HELDOUT_SEED, NOISE_SIGMA, Case, family
 
 __all__ = ["TARGETS", "error_of", "evaluate", "main", "markdown_table", "plan", "summarize", "write_section"]
 
@@ -509,7 +509,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-noise", action="store_true", help="noise-free fits only")
     parser.add_argument("--noisy-backends", default=None, help="comma-separated backends of the noisy fits (default: the first of --backends)")
     parser.add_argument("--every-method-backends", default=None, help="comma-separated backends of the non-default methods of global and camera (default: the first of --backends)")
-    parser.add_argument("--json", default="docs/heldout.json", help="where to write rows and summary (default docs/heldout.json)")
+    parser.add_argument("--family", choices=("heldout", "development"), default="heldout", help="the frozen held-out family (the report) or the development family (DEVELOPMENT_SEED: tune on it; its numbers go to no report, BENCHMARKS.md is left alone)")
+    parser.add_argument("--json", default=None, help="where to write rows and summary (default docs/heldout.json for the held-out family, none for the development family)")
     parser.add_argument("--write-benchmarks", action=argparse.BooleanOptionalAction, default=True, help="replace this run's section of --benchmarks (default on)")
     parser.add_argument("--benchmarks", default="BENCHMARKS.md", help="the Markdown file of --write-benchmarks (default BENCHMARKS.md)")
     parser.add_argument("--label", choices=("before", "after"), default=None, help="label of the table: BENCHMARKS.md keeps one section per label")
@@ -517,13 +518,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
 
+    development = args.family == "development"
+    seed = DEVELOPMENT_SEED if development else HELDOUT_SEED
+    if args.json is None and not development:
+        args.json = "docs/heldout.json"
+    if development:
+        args.write_benchmarks = False
     backends = tuple(b for b in args.backends.split(",") if b)
     if args.threads:
         _limit_threads(args.threads, backends)
     noise = (0.0,) if args.no_noise else (0.0, NOISE_SIGMA)
     load_before = _load()
     start = time.perf_counter()
-    cases = family(args.cases, args.size)
+    cases = family(args.cases, args.size, seed)
     render_seconds = time.perf_counter() - start
     rows = evaluate(cases, backends=backends, models=None if args.models is None else args.models.split(","), methods=None if args.methods is None else args.methods.split(","), noise=noise, noisy_backends=None if args.noisy_backends is None else tuple(args.noisy_backends.split(",")), every_method_backends=None if args.every_method_backends is None else tuple(args.every_method_backends.split(",")), progress=not args.no_progress)
     seconds = time.perf_counter() - start
@@ -535,7 +542,8 @@ def main(argv: list[str] | None = None) -> int:
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "machine": _machine(),
         "commit": _commit(),
-        "seed": HELDOUT_SEED,
+        "seed": seed,
+        "family": args.family,
         "cases": len(cases),
         "size": args.size,
         "kinds": kinds,

@@ -55,10 +55,13 @@ from diffblur.scenes import Camera, ImageTexture, Layer, Rotation, Scene, SceneB
 from diffblur.shutters import LinearRamp, ShutterWindow, Trapezoid
 from fitting.scenes import layer_ids
 
-__all__ = ["HELDOUT_SEED", "KINDS", "NOISE_SIGMA", "Case", "case_hash", "family", "frozen", "manifest"]
+__all__ = ["DEVELOPMENT_SEED", "HELDOUT_SEED", "KINDS", "NOISE_SIGMA", "Case", "case_hash", "family", "frozen", "manifest"]
 
 #: The family's seed: used for nothing else in the repository.
 HELDOUT_SEED = 7_340_021
+#: The development family's seed (`python -m fitting.evaluate --family development`): the same
+#: kinds of scene, drawn apart from the held-out ones, to tune on. Used for nothing else either.
+DEVELOPMENT_SEED = 5_550_123
 #: The noise every case carries for the noisy evaluation.
 NOISE_SIGMA = 0.01
 #: Kinds in the order case k takes them (k modulo 15): 5 objects, 4 pan, 3 rotation, 3 zoom.
