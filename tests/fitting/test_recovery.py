@@ -101,7 +101,7 @@ def test_every_default_fit_converges_or_warns():
 _PROBLEMS = {
     "global gather": lambda: (scenes.translation(32, (3.0, -1.5))[0], dict(model="global", method="gather")),
     "global reconstruct": lambda: (scenes.translation(32, (2.5, 1.0))[0], dict(model="global", method="reconstruct")),
-    "layers": lambda: (_object_over_background(32, (3.0, 1.5)), dict(model="layers", method="gather")),
+    "layers": lambda: (_object_over_background(32, (3.0, 1.5)), dict(model="layers")),
     "exposure scatter": lambda: (_object_over_background(32, (3.0, 1.5)), dict(model="exposure", method="scatter")),
     "motion_ids": lambda: (scenes.two_objects(32)[0], dict(model="motion_ids", method="gather")),
 }
