@@ -8,6 +8,7 @@ the paper does (the backends use the power basis in t, an independent formulatio
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 
@@ -22,13 +23,14 @@ from diffblur._scatter_options import (
     FILLS,
     MID_PREV_TIME,
     length_times,
+    no_still_message,
     point_count,
     point_masses,
     point_times,
     resolve_options,
     resolve_path,
 )
-from diffblur.conventions import DEPTH_CHANNELS
+from diffblur.conventions import DEPTH_CHANNELS, STILL_SPEED
 from diffblur.shutters import ShutterWindow, get_shutter
 
 __all__ = ["bezier_control_points", "bezier_scatter", "still_fill"]
@@ -168,8 +170,8 @@ def bezier_scatter(
 ) -> np.ndarray:
     """Seed 003's scatter: every moving pixel splats its colour along its path over the exposure.
 
-    See `torch_impl.bezier_scatter` for the arguments. Per moving source pixel S (still pixels, whose
-    path is the point S itself, are skipped) and per point k at time t_k with shutter mass m_k, the
+    See `torch_impl.bezier_scatter` for the arguments. Per moving source pixel S (still pixels, which
+    move at most STILL_SPEED px, are skipped) and per point k at time t_k with shutter mass m_k, the
     point p_S(t_k) splats bilinearly onto up to four pixels D with weight
 
         omega = bilinear(D) * softDepthCompare(depth[D], depth[S], soft_z_extent) * m_k * f,
@@ -205,7 +207,7 @@ def bezier_scatter(
         if path == "arc":
             center, angle = arc_center[b, :, i, j], float(arc_angle[b, 0, i, j])
             radius = math.hypot(*(x - center))
-            return (angle != 0.0 and radius != 0.0), (lambda t: _arc_point(center, angle, x, t)), (lambda t: abs(angle) * radius)
+            return abs(angle) * radius > STILL_SPEED, (lambda t: _arc_point(center, angle, x, t)), (lambda t: abs(angle) * radius)
         offsets = [offset_prev[b, :, i, j], offset_next[b, :, i, j]]
         if degree == 1:
             positions = [x + offsets[0], x + offsets[1]]
@@ -215,7 +217,7 @@ def bezier_scatter(
             offsets.append(offset_mid_prev[b, :, i, j])
             positions = [x + offsets[0], x + offsets[2], x, x + offsets[1]]
         control = bezier_control_points(positions, degree)
-        moving = any(np.any(o != 0) for o in offsets)
+        moving = any(math.hypot(*o) > STILL_SPEED for o in offsets)
         return moving, (lambda t: _bezier_point(control, 0.5 * (t + 1.0))), (lambda t: _bezier_speed(control, 0.5 * (t + 1.0)))
 
     if samples is None:
@@ -250,6 +252,10 @@ def bezier_scatter(
                         accumulated[b, :, row, column] += omega * color[b, :, i, j]
                         alpha[b, 0, row, column] += omega
 
+    if background is None and fill == "still":
+        message = no_still_message(moving_pixels[:, 0])
+        if message is not None:
+            warnings.warn(message, UserWarning, stacklevel=2)
     if background is None:
         background = color if fill == "color" else still_fill(color, (~moving_pixels).astype(color.dtype))
     fill = np.where(moving_pixels, background, color)

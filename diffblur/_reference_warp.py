@@ -17,6 +17,7 @@ from diffblur._warp_options import (
     require_path,
     warp_blend_options,
 )
+from diffblur.conventions import DEFAULT_SHUTTER
 from diffblur.shutters import ShutterWindow
 
 __all__ = ["accumulate_warps", "warp_blend"]
@@ -33,7 +34,7 @@ def accumulate_warps(
     velocity: np.ndarray | None,
     *,
     instants: int = DEFAULT_INSTANTS,
-    shutter: str | ShutterWindow = "box",
+    shutter: str | ShutterWindow = DEFAULT_SHUTTER,
     sampling: str = "bilinear",
     offset_prev: np.ndarray | None = None,
     offset_next: np.ndarray | None = None,

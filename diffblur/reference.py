@@ -24,7 +24,9 @@ from diffblur.conventions import (
     DEFAULT_MAX_RADIUS,
     DEFAULT_MIN_RADIUS,
     DEFAULT_SAMPLES,
+    DEFAULT_SHUTTER,
     DEFAULT_SOFT_Z_EXTENT,
+    EARLY_OUT_SPEED,
     EPSILON,
     IGN_A,
     IGN_B,
@@ -234,7 +236,7 @@ def gather_blur(
     velocity: np.ndarray,
     *,
     samples: int = DEFAULT_SAMPLES,
-    shutter: str | ShutterWindow = "box",
+    shutter: str | ShutterWindow = DEFAULT_SHUTTER,
     sampling: str = "bilinear",
     adaptive: bool | tuple[int, ...] = False,
     pyramid: bool = False,
@@ -287,7 +289,7 @@ def reconstruct(
     soft_z_extent: float = DEFAULT_SOFT_Z_EXTENT,
     jitter: str | np.ndarray = "noise",
     sampling: str = "bilinear",
-    shutter: str | ShutterWindow = "box",
+    shutter: str | ShutterWindow = DEFAULT_SHUTTER,
     early_out: bool | None = None,
     directions: str = "neighbor",
     min_radius: float = DEFAULT_MIN_RADIUS,
@@ -297,7 +299,7 @@ def reconstruct(
     """Seed 000 Listing 1, the reconstruction filter, pixel by pixel.
 
     TileMax and NeighborMax with tile = ceil(max_radius); per pixel X the dominant neighbourhood
-    velocity v_N; the early-out where |v_N| <= EPSILON + 0.5 px (on by default for "nearest" only,
+    velocity v_N; the early-out where |v_N| <= EARLY_OUT_SPEED (0.501 px) (on by default for "nearest" only,
     so the differentiable default hides no parameter); the centre weight 1 / |V[X]|; S - 1 taps
     Y = X + v_N t at t = mix(-1, 1, (i + j + 1) / (S + 1)) with the whole filter jittered by j;
     the three cases from soft_depth_compare, cone and cylinder; each tap also weighted by the
@@ -346,7 +348,7 @@ def reconstruct(
         for i in range(height):
             for j in range(width):
                 v_n = neighbors[b, :, i // tile, j // tile]
-                if early_out and math.hypot(*v_n) <= EPSILON + 0.5:
+                if early_out and math.hypot(*v_n) <= EARLY_OUT_SPEED:
                     out[b, :, i, j] = color[b, :, i, j]
                     continue
                 v_x = velocity[b, :, i, j]

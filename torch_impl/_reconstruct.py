@@ -12,9 +12,10 @@ from diffblur.conventions import (
     DEFAULT_MAX_RADIUS,
     DEFAULT_MIN_RADIUS,
     DEFAULT_SAMPLES,
+    DEFAULT_SHUTTER,
     DEFAULT_SOFT_Z_EXTENT,
     DEPTH_CHANNELS,
-    EPSILON,
+    EARLY_OUT_SPEED,
     JITTER_MODES,
     VECTOR_CHANNELS,
 )
@@ -66,7 +67,7 @@ def reconstruct(
     soft_z_extent: float = DEFAULT_SOFT_Z_EXTENT,
     jitter: str | Tensor = "noise",
     sampling: str = "bilinear",
-    shutter: str | ShutterWindow = "box",
+    shutter: str | ShutterWindow = DEFAULT_SHUTTER,
     early_out: bool | None = None,
     directions: str = "neighbor",
     min_radius: float = DEFAULT_MIN_RADIUS,
@@ -96,7 +97,7 @@ def reconstruct(
             tensor with values in [-0.5, 0.5].
         sampling: "bilinear" (differentiable through the tap positions) or "nearest" (the paper).
         shutter: a window name or `ShutterWindow` (its parameters may be tensors to fit).
-        early_out: return C[X] where |v_N| <= EPSILON + 0.5 px, as the paper does. None (default)
+        early_out: return C[X] where |v_N| <= EARLY_OUT_SPEED (0.501 px), as the paper does. None (default)
             turns it on for "nearest" only: on the differentiable path it would zero the gradient
             of a velocity that starts small.
         directions: "neighbor" (the paper) or "neighbor_and_own": odd taps along V[X] instead
@@ -224,5 +225,5 @@ def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, s
     # a weight of 1 / |V| (1e-4 at 1e4 px) squares to 0 in float16, an infinite gradient.
     out = total / weight
     if early_out:
-        out = torch.where(speed_n <= EPSILON + 0.5, color.to(wide), out)
+        out = torch.where(speed_n <= EARLY_OUT_SPEED, color.to(wide), out)
     return out.to(color.dtype)

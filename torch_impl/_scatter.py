@@ -3,6 +3,7 @@ along a Bezier curve (or a circular arc) through its positions over the exposure
 
 from __future__ import annotations
 
+import warnings
 import torch
 import torch.nn.functional as F
 from jaxtyping import Float
@@ -22,6 +23,8 @@ from diffblur._scatter_options import (
     constant_masses,
     curve_point,
     has_constant_parameters,
+    moving_mask,
+    no_still_message,
     point_count,
     point_masses,
     point_times,
@@ -197,7 +200,8 @@ def bezier_scatter(
     shutter's mass m_k on its stratum, are splatted bilinearly (differentiable in the positions) onto
     the pixels around them, where the source is in front of or within `soft_z_extent` behind the
     destination's depth (seed 000's softDepthCompare; no depth write), and summed into A (colour)
-    and alpha (weight). Pixels that do not move are skipped (a mask: shapes never depend on data).
+    and alpha (weight). Still pixels, whose point moves at most `diffblur.conventions.STILL_SPEED`
+    px (a renderer's float leftovers included), are skipped (a mask: shapes never depend on data).
 
     Normalisation, with fill = color where the pixel is still; where it moves, `background` if given,
     else (fill="still", the default) the colour behind it estimated from the still pixels by push-pull,
@@ -231,13 +235,14 @@ def bezier_scatter(
             torch.compile pass an int). Curves longer than the count in pixels are dotted.
         max_samples: the cap of the automatic count, an int >= 1.
         shutter: a name in `diffblur.shutters.SHUTTERS` or a `ShutterWindow` whose parameters may be
-            tensors to fit; seed 003 weighs its curves with a Gaussian.
+            tensors to fit. Default: the box, as every op (`diffblur.conventions.DEFAULT_SHUTTER`);
+            seed 003 weighs its curves with a Gaussian (shutter="gaussian").
         normalization: "coverage" or "paper" (above).
         fill: what a moving pixel shows for the part of the exposure nothing covers it, without a
             `background`: "still" (default), an estimate of the scene behind it from the pixels that
             do not move (push-pull: the still pixels' colours averaged over 2 x 2 blocks down to one
             pixel, then filled back in from coarse to fine where a block has no still pixel; the
-            pixel's own colour where the image has none), or "color", its own colour. With a box
+            pixel's own colour where the image has none, with a UserWarning in eager mode), or "color", its own colour. With a box
             shutter, degree 2, on the propeller (48 x 48 at 0.3 to 1.4 rad, and 128 x 128),
             translate, gears and crossing presets "still" is 3.4 to 7.8 dB (PSNR) closer to the
             ground truth than "color" and 3.8 to 7.5 dB closer than `gather_blur`. Still pixels in
@@ -337,6 +342,13 @@ def bezier_scatter(
     )
 
 
+def _moved_by(kind: str, degree: int, given: dict[str, Tensor]) -> tuple:
+    """What `moving_mask` reads: the offsets given, or the arc's (center, angle)."""
+    if kind == "arc":
+        return (given["arc_center"], given["arc_angle"])
+    return (given["offset_prev"], given["offset_next"]) + ((given["offset_mid_prev"],) if degree == 3 else ())
+
+
 def _terms(kind: str, degree: int, given: dict[str, Tensor]) -> tuple:
     if kind == "arc":
         return (given["arc_center"], given["arc_angle"])
@@ -387,12 +399,11 @@ def _scatter(
     _, channels, height, width = color.shape
     x, y = pixel_grid(height, width, color)
     terms = _terms(kind, degree, given)
-    if kind == "arc":
-        center, angle = terms
-        moving = (angle[:, 0] != 0) & ((x != center[:, 0]) | (y != center[:, 1]))
-    else:
-        offsets = [given["offset_prev"], given["offset_next"]] + ([given["offset_mid_prev"]] if degree == 3 else [])
-        moving = torch.stack([torch.any(v != 0, dim=1) for v in offsets]).any(dim=0)
+    moving = moving_mask(kind, _moved_by(kind, degree, given), x, y)
+    if fill == "still" and background is None and not torch.compiler.is_compiling():
+        message = no_still_message(moving.cpu().numpy())
+        if message is not None:
+            warnings.warn(message, UserWarning, stacklevel=3)
 
     if fused:
         from torch_impl._fused_scatter import fused_splat

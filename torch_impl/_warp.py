@@ -19,7 +19,7 @@ from diffblur._warp_options import (
     require_path,
     warp_blend_options,
 )
-from diffblur.conventions import VECTOR_CHANNELS
+from diffblur.conventions import DEFAULT_SHUTTER, VECTOR_CHANNELS
 from diffblur.shutters import ShutterWindow
 from torch_impl import _checks
 from torch_impl._sampling import pixel_grid, position_dtype, sample
@@ -38,7 +38,7 @@ def accumulate_warps(
     velocity: Float[Tensor, "b 2 h w"] | None,
     *,
     instants: int = DEFAULT_INSTANTS,
-    shutter: str | ShutterWindow = "box",
+    shutter: str | ShutterWindow = DEFAULT_SHUTTER,
     sampling: str = "bilinear",
     offset_prev: Float[Tensor, "b 2 h w"] | None = None,
     offset_next: Float[Tensor, "b 2 h w"] | None = None,
