@@ -19,7 +19,7 @@ from diffblur._scatter_options import (
     DEFAULT_MAX_SAMPLES,
     DEFAULT_NORMALIZATION,
     DEFAULT_SHUTTER,
-    DEFAULT_SOFT_Z_EXTENT,
+    DEFAULT_RELATIVE_Z_EXTENT,
     FILLS,
     MID_PREV_TIME,
     length_times,
@@ -166,7 +166,8 @@ def bezier_scatter(
     fill: str = DEFAULT_FILL,
     background: np.ndarray | None = None,
     background_weight: float = DEFAULT_BACKGROUND_WEIGHT,
-    soft_z_extent: float | np.ndarray = DEFAULT_SOFT_Z_EXTENT,
+    soft_z_extent: float | np.ndarray | None = None,
+    relative_z_extent: float | np.ndarray = DEFAULT_RELATIVE_Z_EXTENT,
 ) -> np.ndarray:
     """Seed 003's scatter: every moving pixel splats its colour along its path over the exposure.
 
@@ -198,7 +199,10 @@ def bezier_scatter(
     batch, channels, height, width = checks.require_image("color", color.shape)
     checks.require_image("depth", depth.shape, channels=DEPTH_CHANNELS)
     fill = checks.require_choice("fill", fill, FILLS)
-    extent = float(soft_z_extent)
+    relative, extent = checks.depth_band(soft_z_extent, relative_z_extent)
+    extent = float(extent)
+    if relative:  # the band relative to depth: compare log depths (`diffblur.checks.depth_band`)
+        depth, extent = np.log(depth), math.log1p(extent)
     window = get_shutter(shutter)
 
     def curve(b: int, i: int, j: int):

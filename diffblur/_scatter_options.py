@@ -37,7 +37,7 @@ __all__ = [
     "DEFAULT_MAX_SAMPLES",
     "DEFAULT_NORMALIZATION",
     "DEFAULT_SHUTTER",
-    "DEFAULT_SOFT_Z_EXTENT",
+    "DEFAULT_RELATIVE_Z_EXTENT",
     "DEGREES",
     "DEFAULT_FILL",
     "FILLS",
@@ -89,9 +89,10 @@ DEGREES = (1, 2, 3)
 DEFAULT_SHUTTER = conventions.DEFAULT_SHUTTER
 #: Cap of the automatic point count (one point per pixel of the longest curve).
 DEFAULT_MAX_SAMPLES = 32
-#: Depth units: a splat counts fully where its source is in front of the destination or level with
-#: it, fading to nothing `soft_z_extent` behind; the same default as reconstruct's.
-DEFAULT_SOFT_Z_EXTENT = conventions.DEFAULT_SOFT_Z_EXTENT
+#: A splat counts fully where its source is in front of the destination or level with it, fading to
+#: nothing a fraction DEFAULT_RELATIVE_Z_EXTENT of the destination's depth behind (or
+#: `soft_z_extent` depth units behind when that is given); the same default as reconstruct's.
+DEFAULT_RELATIVE_Z_EXTENT = conventions.DEFAULT_RELATIVE_Z_EXTENT
 #: Seed 003's w_b (sec. 4), used by normalization="paper".
 DEFAULT_BACKGROUND_WEIGHT = 5.0
 #: The instant of the cubic's extra position (seed 003 sec. 5.1 names t = -1/2 or t = -2).

@@ -11,9 +11,9 @@ from diffblur import checks, reference
 from diffblur.conventions import (
     DEFAULT_MAX_RADIUS,
     DEFAULT_MIN_RADIUS,
+    DEFAULT_RELATIVE_Z_EXTENT,
     DEFAULT_SAMPLES,
     DEFAULT_SHUTTER,
-    DEFAULT_SOFT_Z_EXTENT,
     DEPTH_CHANNELS,
     EARLY_OUT_SPEED,
     JITTER_MODES,
@@ -59,7 +59,8 @@ def reconstruct(
     *,
     max_radius: float = DEFAULT_MAX_RADIUS,
     samples: int = DEFAULT_SAMPLES,
-    soft_z_extent: float = DEFAULT_SOFT_Z_EXTENT,
+    soft_z_extent: float | None = None,
+    relative_z_extent: float = DEFAULT_RELATIVE_Z_EXTENT,
     jitter: str | Array = "noise",
     sampling: str = "bilinear",
     shutter: str | ShutterWindow = DEFAULT_SHUTTER,
@@ -87,7 +88,11 @@ def reconstruct(
         depth: (B, 1, H, W) positive depth, larger = farther.
         max_radius: the largest blur radius k in pixels; tiles are ceil(k) pixels.
         samples: taps S, an odd integer >= 1.
-        soft_z_extent: depth band of soft_depth_compare, in depth units, > 0.
+        soft_z_extent: depth band of soft_depth_compare in depth units, a number > 0; None
+            (default): the band relative to depth, `relative_z_extent`.
+        relative_z_extent: with soft_z_extent=None, the band as a fraction of depth, > 0: Y counts
+            as in front of X up to z_Y = z_X (1 + relative_z_extent), fading linearly in log depth,
+            so that the output does not depend on the scene's depth units.
         jitter: "noise" (interleaved gradient noise, deterministic), "none", or a (B, 1, H, W)
             array with values in [-0.5, 0.5].
         sampling: "bilinear" (differentiable through the tap positions) or "nearest" (the paper).
@@ -137,6 +142,7 @@ def reconstruct(
         max_radius=max_radius,
         samples=samples,
         soft_z_extent=soft_z_extent,
+        relative_z_extent=relative_z_extent,
         sampling=sampling,
         shutter=shutter,
         early_out=early_out,
@@ -146,6 +152,8 @@ def reconstruct(
         pyramid=pyramid,
     )
     jitter = _jitter_array(jitter, color)
+    if o.log_depth:  # the band relative to depth: compare log depths (`diffblur.checks.depth_band`)
+        depth = jnp.log(depth)
     if fused is not False:
         from diffblur._fused import use_fused
         from jax_impl._fused import fused_reconstruct, unfused_reason

@@ -18,7 +18,7 @@ from diffblur._scatter_options import (
     DEFAULT_MAX_SAMPLES,
     DEFAULT_NORMALIZATION,
     DEFAULT_SHUTTER,
-    DEFAULT_SOFT_Z_EXTENT,
+    DEFAULT_RELATIVE_Z_EXTENT,
     FILLS,
     MID_PREV_TIME,
     constant_masses,
@@ -46,15 +46,16 @@ from jax_impl._sampling import pixel_grid, position_dtype, widen_window
 _CHUNK_PIXEL_POINTS = 1 << 18
 
 
-def _extent(value: object, like: Array) -> Array:
-    """soft_z_extent: a number > 0 or a 0-d array > 0, as a 0-d array of like's dtype."""
+def _extent(value: object, like: Array, name: str = "soft_z_extent") -> Array:
+    """soft_z_extent (or relative_z_extent, `name`): a number > 0 or a 0-d array > 0, as a 0-d array
+    of like's dtype."""
     if isinstance(value, (jax.Array, np.ndarray)):
-        value = _checks.floating_array("soft_z_extent", value)
+        value = _checks.floating_array(name, value)
         if value.ndim != 0:
-            raise ValueError(f"soft_z_extent must be a number or a 0-d array, got shape {tuple(value.shape)}")
-        _checks.same_dtype("soft_z_extent", value, "depth", like)
-        return _checks.positive_values("soft_z_extent", value)
-    return jnp.asarray(checks.require_positive_number("soft_z_extent", value), dtype=like.dtype)
+            raise ValueError(f"{name} must be a number or a 0-d array, got shape {tuple(value.shape)}")
+        _checks.same_dtype(name, value, "depth", like)
+        return _checks.positive_values(name, value)
+    return jnp.asarray(checks.require_positive_number(name, value), dtype=like.dtype)
 
 
 def _bezier_terms(degree: int, prev: Array, nxt: Array, mid: Array | None) -> tuple:
@@ -187,7 +188,8 @@ def bezier_scatter(
     fill: str = DEFAULT_FILL,
     background: Float[Array, "b c h w"] | None = None,
     background_weight: float = DEFAULT_BACKGROUND_WEIGHT,
-    soft_z_extent: float | Array = DEFAULT_SOFT_Z_EXTENT,
+    soft_z_extent: float | Array | None = None,
+    relative_z_extent: float | Array = DEFAULT_RELATIVE_Z_EXTENT,
     fused: bool | None = None,
 ) -> Float[Array, "b c h w"]:
     """Scatter every moving pixel's colour along its curved path over the exposure (seed 003).
@@ -197,7 +199,7 @@ def bezier_scatter(
     B1 = 2 p(0) - (p(-1) + p(1)) / 2 so that B(1/2) = p(0) (seed 003's erratum fixed); or a circular
     arc. `samples` points at the midpoints t_k of equal strata of the exposure, each carrying the
     shutter's mass m_k on its stratum, are splatted bilinearly (differentiable in the positions) onto
-    the pixels around them, where the source is in front of or within `soft_z_extent` behind the
+    the pixels around them, where the source is in front of or within the depth band behind the
     destination's depth (seed 000's softDepthCompare; no depth write), and summed into A (colour)
     and alpha (weight). Still pixels, whose point moves at most `diffblur.conventions.STILL_SPEED`
     px (a renderer's float leftovers included), are skipped (a mask: shapes never depend on data).
@@ -250,7 +252,12 @@ def bezier_scatter(
             two-layer extension): moving pixels show it, not their own colour, for the part of the
             exposure nothing covers them.
         background_weight: seed 003's w_b, a number > 0 (used by "paper").
-        soft_z_extent: depth units, a number > 0 or a 0-d array (differentiable).
+        soft_z_extent: the depth band in depth units, a number > 0 or a 0-d array (differentiable);
+            None (default): the band relative to depth, `relative_z_extent`.
+        relative_z_extent: with soft_z_extent=None, the band as a fraction of the destination's
+            depth, a number > 0 or a 0-d array: a splat counts fully up to level with the
+            destination, fading linearly in log depth to nothing at z_source = z_dest (1 + r), so
+            that the output does not depend on the scene's depth units.
         fused: sum the splats and their backward in one parallel CPU loop each
             (`diffblur._fused_scatter`, numba, a host callback, also under jax.jit and jax.vmap),
             with the same result and gradients (tested) and O(pixels) memory; at 1280x720 on 2
@@ -302,9 +309,12 @@ def bezier_scatter(
         background = _checks.image("background", background)
         _checks.same_shape("background", background, "color", color)
     fill = checks.require_choice("fill", fill, FILLS)
-    extent = _extent(soft_z_extent, depth)
+    relative, band = checks.depth_band(soft_z_extent, relative_z_extent)
+    extent = _extent(band, depth, "relative_z_extent" if relative else "soft_z_extent")
     window = get_shutter(shutter)
     depth = _checks.finite_values("depth", _checks.positive_values("depth", depth))
+    if relative:  # the band relative to depth: compare log depths (`diffblur.checks.depth_band`)
+        depth, extent = jnp.log(depth), jnp.log1p(extent)
     given = {name: _checks.finite_values(name, value) for name, value in given.items()}
 
     if fused is not False:

@@ -41,3 +41,78 @@ def test_scatter_and_gather_blur_a_translation_alike_with_defaults(backend):
     same = np.abs(scatter() - gather).mean()
     other = np.abs(scatter(shutter="gaussian") - gather).mean()
     assert same < 1e-6 and other > 0.01, (same, other)
+
+
+def _tilted_scene():
+    """16 x 16: a tilted floor (depth 5 to 2 down the rows) sliding 2 px down but for its last 4 rows,
+    its splats landing on
+    nearer and farther parts of itself, with a box at depth 1.5 moving 3 px right over it; offsets
+    as for a translation; depth in arbitrary units."""
+    rng = np.random.default_rng(8)
+    color = rng.uniform(size=(1, 3, 16, 16))
+    depth = np.broadcast_to(np.linspace(5.0, 2.0, 16)[:, None], (1, 1, 16, 16)).copy()
+    depth[..., 5:10, 4:9] = 1.5
+    velocity = np.zeros((1, 2, 16, 16))
+    velocity[:, 1, :12] = 2.0  # the last rows are still
+    velocity[:, :, 5:10, 4:9] = np.array([3.0, 0.0])[:, None, None]
+    return color, depth, velocity
+
+
+def _depth_ops(module, a):
+    """Every op that reads depth, with defaults (only the shutter named), on arrays made by `a`."""
+    return {
+        "reconstruct": lambda c, z, v: module.reconstruct(a(c), a(v), a(z), shutter="box"),
+        "bezier_scatter": lambda c, z, v: module.bezier_scatter(a(c), a(z), a(-v), a(v), shutter="box"),
+        "bezier_scatter_tensor_ops": lambda c, z, v: module.bezier_scatter(a(c), a(z), a(-v), a(v), shutter="box", fused=False),
+        "reconstruct_tensor_ops": lambda c, z, v: module.reconstruct(a(c), a(v), a(z), shutter="box", fused=False),
+    }
+
+
+@pytest.mark.parametrize("scale", [0.01, 100.0])
+@pytest.mark.parametrize("backend", BACKENDS, ids=lambda b: b.name)
+def test_rescaling_depth_changes_no_output_with_defaults(backend, scale):
+    """Depth in any units: multiplying it by 0.01 or 100 leaves every op's output unchanged (float64:
+    to 1e-9). With the old band of 0.1 depth units the scatter changed by up to 0.2 here."""
+    color, depth, velocity = _tilted_scene()
+    for name, op in _depth_ops(backend.ops, backend.array).items():
+        base = backend.numpy(op(color, depth, velocity))
+        scaled = backend.numpy(op(color, depth * scale, velocity))
+        np.testing.assert_allclose(scaled, base, atol=1e-9, err_msg=name)
+
+
+def test_rescaling_depth_changes_no_reference_output():
+    color, depth, velocity = _tilted_scene()
+    color, depth, velocity = color[..., 4:16, :10], depth[..., 4:16, :10], velocity[..., 4:16, :10]
+    for op in (
+        lambda z: reference.reconstruct(color, velocity, z, samples=5, shutter="box"),
+        lambda z: reference.bezier_scatter(color, z, -velocity, velocity, samples=4, shutter="box"),
+    ):
+        base = op(depth)
+        for scale in (0.01, 100.0):
+            np.testing.assert_allclose(op(depth * scale), base, atol=1e-9)
+
+
+@pytest.mark.parametrize("backend", BACKENDS, ids=lambda b: b.name)
+def test_an_absolute_band_stays_available(backend):
+    """soft_z_extent in depth units still applies (and then depth's units matter)."""
+    color, depth, velocity = _tilted_scene()
+    a = backend.array
+    absolute = lambda z: backend.numpy(backend.ops.bezier_scatter(a(color), a(z), a(-velocity), a(velocity), shutter="box", soft_z_extent=0.1))  # noqa: E731
+    assert np.abs(absolute(depth * 0.01) - absolute(depth)).max() > 0.01
+    relative = backend.numpy(backend.ops.bezier_scatter(a(color), a(depth), a(-velocity), a(velocity), shutter="box", relative_z_extent=0.05))
+    # The relative band is the absolute band log(1 + r) on log depth.
+    via_log = backend.numpy(backend.ops.bezier_scatter(a(color), a(np.log(depth) + 10.0), a(-velocity), a(velocity), shutter="box", soft_z_extent=float(np.log1p(0.05))))
+    np.testing.assert_allclose(relative, via_log, atol=1e-9)
+
+
+@pytest.mark.parametrize("backend", BACKENDS, ids=lambda b: b.name)
+def test_bad_bands_are_refused(backend):
+    color, depth, velocity = (backend.array(x) for x in _tilted_scene())
+    for op in (
+        lambda **kw: backend.ops.reconstruct(color, velocity, depth, **kw),
+        lambda **kw: backend.ops.bezier_scatter(color, depth, -velocity, velocity, samples=3, **kw),
+    ):
+        with pytest.raises(ValueError, match=r"relative_z_extent must be > 0, got 0"):
+            op(relative_z_extent=0.0)
+        with pytest.raises(ValueError, match=r"soft_z_extent must be > 0, got -1"):
+            op(soft_z_extent=-1.0)

@@ -3,6 +3,7 @@ along a Bezier curve (or a circular arc) through its positions over the exposure
 
 from __future__ import annotations
 
+import math
 import warnings
 import torch
 import torch.nn.functional as F
@@ -17,7 +18,7 @@ from diffblur._scatter_options import (
     DEFAULT_MAX_SAMPLES,
     DEFAULT_NORMALIZATION,
     DEFAULT_SHUTTER,
-    DEFAULT_SOFT_Z_EXTENT,
+    DEFAULT_RELATIVE_Z_EXTENT,
     FILLS,
     MID_PREV_TIME,
     constant_masses,
@@ -51,16 +52,17 @@ def _finite_values(name: str, x: Tensor) -> None:
         raise ValueError(checks.nonfinite_message(name))
 
 
-def _extent(value: object, like: Tensor) -> float | Tensor:
-    """soft_z_extent: a number > 0 or a 0-d tensor > 0 (kept, so it gets a gradient)."""
+def _extent(value: object, like: Tensor, name: str = "soft_z_extent") -> float | Tensor:
+    """soft_z_extent (or relative_z_extent, `name`): a number > 0 or a 0-d tensor > 0 (kept, so it
+    gets a gradient)."""
     if isinstance(value, Tensor):
-        _checks.floating_tensor("soft_z_extent", value)
+        _checks.floating_tensor(name, value)
         if value.ndim != 0:
-            raise ValueError(f"soft_z_extent must be a number or a 0-d tensor, got shape {tuple(value.shape)}")
-        _checks.same_dtype_and_device("soft_z_extent", value, "depth", like)
-        _checks.positive_values("soft_z_extent", value)
+            raise ValueError(f"{name} must be a number or a 0-d tensor, got shape {tuple(value.shape)}")
+        _checks.same_dtype_and_device(name, value, "depth", like)
+        _checks.positive_values(name, value)
         return value
-    return checks.require_positive_number("soft_z_extent", value)
+    return checks.require_positive_number(name, value)
 
 
 def _bezier_terms(degree: int, prev: Tensor, nxt: Tensor, mid: Tensor | None) -> tuple:
@@ -188,7 +190,8 @@ def bezier_scatter(
     fill: str = DEFAULT_FILL,
     background: Float[Tensor, "b c h w"] | None = None,
     background_weight: float = DEFAULT_BACKGROUND_WEIGHT,
-    soft_z_extent: float | Tensor = DEFAULT_SOFT_Z_EXTENT,
+    soft_z_extent: float | Tensor | None = None,
+    relative_z_extent: float | Tensor = DEFAULT_RELATIVE_Z_EXTENT,
     fused: bool | None = None,
 ) -> Float[Tensor, "b c h w"]:
     """Scatter every moving pixel's colour along its curved path over the exposure (seed 003).
@@ -198,7 +201,7 @@ def bezier_scatter(
     B1 = 2 p(0) - (p(-1) + p(1)) / 2 so that B(1/2) = p(0) (seed 003's erratum fixed); or a circular
     arc. `samples` points at the midpoints t_k of equal strata of the exposure, each carrying the
     shutter's mass m_k on its stratum, are splatted bilinearly (differentiable in the positions) onto
-    the pixels around them, where the source is in front of or within `soft_z_extent` behind the
+    the pixels around them, where the source is in front of or within the depth band behind the
     destination's depth (seed 000's softDepthCompare; no depth write), and summed into A (colour)
     and alpha (weight). Still pixels, whose point moves at most `diffblur.conventions.STILL_SPEED`
     px (a renderer's float leftovers included), are skipped (a mask: shapes never depend on data).
@@ -251,7 +254,12 @@ def bezier_scatter(
             two-layer extension): moving pixels show it, not their own colour, for the part of the
             exposure nothing covers them.
         background_weight: seed 003's w_b, a number > 0 (used by "paper").
-        soft_z_extent: depth units, a number > 0 or a 0-d tensor (differentiable).
+        soft_z_extent: the depth band in depth units, a number > 0 or a 0-d tensor (differentiable);
+            None (default): the band relative to depth, `relative_z_extent`.
+        relative_z_extent: with soft_z_extent=None, the band as a fraction of the destination's
+            depth, a number > 0 or a 0-d tensor: a splat counts fully up to level with the
+            destination, fading linearly in log depth to nothing at z_source = z_dest (1 + r), so
+            that the output does not depend on the scene's depth units.
         fused: sum the splats and their backward in one parallel CPU loop each
             (`diffblur._fused_scatter`, numba), with the same result and gradients (tested) and
             O(pixels) memory; at 1280x720 on 2 cores 8x faster forward and 9x forward+backward
@@ -300,10 +308,14 @@ def bezier_scatter(
     if background is not None:
         _checks.same_shape("background", _checks.image("background", background), "color", color)
     fill = checks.require_choice("fill", fill, FILLS)
-    extent = _extent(soft_z_extent, depth)
+    relative, band = checks.depth_band(soft_z_extent, relative_z_extent)
+    extent = _extent(band, depth, "relative_z_extent" if relative else "soft_z_extent")
     window = get_shutter(shutter)
     _checks.positive_values("depth", depth)
     _finite_values("depth", depth)
+    if relative:  # the band relative to depth: compare log depths (`diffblur.checks.depth_band`)
+        depth = torch.log(depth)
+        extent = torch.log1p(extent) if isinstance(extent, Tensor) else math.log1p(extent)
     for name, value in given.items():
         _finite_values(name, value)
 
