@@ -116,3 +116,27 @@ def test_bad_bands_are_refused(backend):
             op(relative_z_extent=0.0)
         with pytest.raises(ValueError, match=r"soft_z_extent must be > 0, got -1"):
             op(soft_z_extent=-1.0)
+
+
+def test_the_defaults_table_in_the_docs_matches_the_signatures():
+    """docs/defaults.md lists each op's defaults; every row must be what the signatures say, in both
+    backends, and every keyword default of the ops it covers must have a row."""
+    import pathlib
+    import re
+
+    text = (pathlib.Path(__file__).resolve().parents[1] / "docs" / "defaults.md").read_text()
+    rows = re.findall(r"^\| `(\w+)` \| `(\w+)` \| `([^`]+)` \|", text, flags=re.M)
+    assert len(rows) > 20
+    documented = {}
+    for op, option, default in rows:
+        documented[(op, option)] = eval(default)  # noqa: S307 - literals written in the docs
+    for module in (torch_impl, jax_impl):
+        for op in {op for op, _ in documented}:
+            parameters = inspect.signature(getattr(module, op)).parameters
+            for option, default in documented.items():
+                if option[0] == op:
+                    assert parameters[option[1]].default == default, (module.__name__, op, option[1])
+            for name, p in parameters.items():
+                if p.kind == p.KEYWORD_ONLY and p.default is not None and not callable(p.default) and name != "fused":
+                    assert (op, name) in documented or name == "shutter", (op, name)
+    assert "| all that take one | `shutter` | `\"box\"` |" in text and conventions.DEFAULT_SHUTTER == "box"

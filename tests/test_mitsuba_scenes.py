@@ -92,3 +92,25 @@ def test_render_is_deterministic_for_a_seed():
     a, b = (render_mitsuba(scene, instants=3) for _ in range(2))
     np.testing.assert_array_equal(a.target, b.target)
     np.testing.assert_array_equal(a.color, b.color)
+
+
+def test_benchmark_section_is_written_and_replaced(tmp_path):
+    """`python -m diffblur.mitsuba_bench` in small (one scene, 24 x 24): every method, the targets' tables,
+    written into a markdown file in place of an older section, and kept by `kept_section`."""
+    from diffblur.mitsuba_bench import BEGIN, END, METHODS, kept_section, measure, section, write_section
+
+    results = measure(size=24, backends=("torch",), scenes=("crossing",), cache_dir=tmp_path, repeats=1)
+    assert {r["method"] for r in results["rows"]} == set(METHODS)
+    assert all(np.isfinite(r["psnr"]) and r["ms"] > 0 for r in results["rows"])
+    assert len(results["bands"]) == 2 and len(results["leftovers"]) == len(METHODS)
+    # The leftovers change nothing (still means below STILL_SPEED).
+    assert max(r["change_db"] for r in results["leftovers"]) < 0.05
+    text = section(results)
+    path = tmp_path / "BENCHMARKS.md"
+    path.write_text("# Benchmarks\n\nother tables\n")
+    write_section(str(path), text)
+    write_section(str(path), text.replace("Targets", "Targets again"))
+    written = path.read_text()
+    assert written.count(BEGIN) == 1 and written.count(END) == 1 and "Targets again" in written
+    assert written.startswith("# Benchmarks\n\nother tables\n")
+    assert kept_section(str(path)) == text.replace("Targets", "Targets again")
