@@ -8,7 +8,6 @@ the paper does (the backends use the power basis in t, an independent formulatio
 from __future__ import annotations
 
 import math
-import warnings
 
 import numpy as np
 
@@ -23,12 +22,12 @@ from diffblur._scatter_options import (
     FILLS,
     MID_PREV_TIME,
     length_times,
-    no_still_message,
     point_count,
     point_masses,
     point_times,
     resolve_options,
     resolve_path,
+    warn_without_still,
 )
 from diffblur.conventions import DEPTH_CHANNELS, STILL_SPEED
 from diffblur.shutters import ShutterWindow, get_shutter
@@ -257,9 +256,7 @@ def bezier_scatter(
                         alpha[b, 0, row, column] += omega
 
     if background is None and fill == "still":
-        message = no_still_message(moving_pixels[:, 0])
-        if message is not None:
-            warnings.warn(message, UserWarning, stacklevel=2)
+        warn_without_still(moving_pixels[:, 0], stacklevel=2)
     if background is None:
         background = color if fill == "color" else still_fill(color, (~moving_pixels).astype(color.dtype))
     fill = np.where(moving_pixels, background, color)

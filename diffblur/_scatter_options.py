@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import warnings
 from typing import Any
 
 import numpy as np
@@ -51,6 +52,7 @@ __all__ = [
     "length_times",
     "moving_mask",
     "no_still_message",
+    "warn_without_still",
     "point_count",
     "point_masses",
     "point_times",
@@ -267,6 +269,24 @@ def moving_mask(kind: str, offsets: tuple, x: Any, y: Any) -> Any:
     return moving
 
 
+#: Whether `warn_without_still` has warned in this process.
+_warned_without_still = False
+
+
+def warn_without_still(moving: np.ndarray, stacklevel: int) -> None:
+    """Warn that fill="still" found no still pixel in an image of the batch (it then fills as
+    fill="color"); moving is the (B, H, W) `moving_mask` as NumPy. Once per process: a fit calls
+    the scatter hundreds of times on the same images (`fitting`'s global model moves every pixel),
+    and one warning says what there is to say."""
+    global _warned_without_still
+    if _warned_without_still:
+        return
+    message = no_still_message(moving)
+    if message is not None:
+        _warned_without_still = True
+        warnings.warn(message, UserWarning, stacklevel=stacklevel + 1)
+
+
 def no_still_message(moving: np.ndarray) -> str | None:
     """The warning for fill="still" when an image of the batch has no still pixel, else None; moving is
     the (B, H, W) `moving_mask` as NumPy."""
@@ -277,7 +297,7 @@ def no_still_message(moving: np.ndarray) -> str | None:
         f"bezier_scatter(fill='still') found no still pixel (one that moves at most "
         f"STILL_SPEED={conventions.STILL_SPEED} px) in image(s) {images} of the batch: every moving pixel "
         f"there fills its uncovered time with its own colour, as fill='color'. Pass fill='color' to say "
-        f"so, or a `background`"
+        f"so, or a `background` (warned once per process)"
     )
 
 

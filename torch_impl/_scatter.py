@@ -4,7 +4,6 @@ along a Bezier curve (or a circular arc) through its positions over the exposure
 from __future__ import annotations
 
 import math
-import warnings
 import torch
 import torch.nn.functional as F
 from jaxtyping import Float
@@ -25,7 +24,6 @@ from diffblur._scatter_options import (
     curve_point,
     has_constant_parameters,
     moving_mask,
-    no_still_message,
     point_count,
     point_masses,
     point_times,
@@ -33,6 +31,7 @@ from diffblur._scatter_options import (
     resolve_options,
     resolve_path,
     traced_count_message,
+    warn_without_still,
 )
 from diffblur.conventions import DEPTH_CHANNELS, VECTOR_CHANNELS
 from diffblur.shutters import ShutterWindow, get_shutter
@@ -245,7 +244,8 @@ def bezier_scatter(
             `background`: "still" (default), an estimate of the scene behind it from the pixels that
             do not move (push-pull: the still pixels' colours averaged over 2 x 2 blocks down to one
             pixel, then filled back in from coarse to fine where a block has no still pixel; the
-            pixel's own colour where the image has none, with a UserWarning in eager mode), or "color", its own colour. With a box
+            pixel's own colour where the image has none, with a UserWarning in eager mode, once per
+            process), or "color", its own colour. With a box
             shutter, degree 2, on the propeller (48 x 48 at 0.3 to 1.4 rad, and 128 x 128),
             translate, gears and crossing presets "still" is 3.4 to 7.8 dB (PSNR) closer to the
             ground truth than "color" and 3.8 to 7.5 dB closer than `gather_blur`. Still pixels in
@@ -413,9 +413,7 @@ def _scatter(
     terms = _terms(kind, degree, given)
     moving = moving_mask(kind, _moved_by(kind, degree, given), x, y)
     if fill == "still" and background is None and not torch.compiler.is_compiling():
-        message = no_still_message(moving.cpu().numpy())
-        if message is not None:
-            warnings.warn(message, UserWarning, stacklevel=3)
+        warn_without_still(moving.cpu().numpy(), stacklevel=3)
 
     if fused:
         from torch_impl._fused_scatter import fused_splat

@@ -2,8 +2,8 @@
 
 A renderer's offsets carry float leftovers (1e-6 px) on static surfaces; with them the scatter must
 give the result of exact zeros (its fill="still" needs the still pixels), in the NumPy reference and
-both backends, on the tensor ops and the fused kernel. fill="still" warns, eagerly, when an image has
-no still pixel (it then fills as fill="color").
+both backends, on the tensor ops and the fused kernel. fill="still" warns, eagerly and once per
+process, when an image has no still pixel (it then fills as fill="color").
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import jax
 import numpy as np
 import pytest
 
-from diffblur import conventions, reference
+from diffblur import _scatter_options, conventions, reference
 from diffblur.scenes import preset_scene, render_buffers
 from tests.backends import BACKENDS
 
@@ -84,26 +84,37 @@ def test_moving_mask_threshold_is_the_convention():
             assert (abs(out[0, 0, 0, 1] - 1.0) > 1e-9) == changed, (backend.name, scale)
 
 
+@pytest.fixture
+def fresh_warning(monkeypatch):
+    """The no-still-pixel warning comes once per process: let this test see it again."""
+    monkeypatch.setattr(_scatter_options, "_warned_without_still", False)
+
+
 @pytest.mark.parametrize("backend", BACKENDS, ids=lambda b: b.name)
-def test_fill_still_warns_without_still_pixels(backend):
+def test_fill_still_warns_without_still_pixels(backend, fresh_warning):
     rng = np.random.default_rng(3)
     color = backend.array(rng.uniform(size=(2, 1, 6, 6)))
     depth = backend.array(np.ones((2, 1, 6, 6)))
     offset = np.zeros((2, 2, 6, 6))
     offset[1, 0] = 0.7  # image 1 moves everywhere; image 0 is still
     offset = backend.array(offset)
-    with pytest.warns(UserWarning, match=r"no still pixel .* in image\(s\) \[1\]"):
-        backend.ops.bezier_scatter(color, depth, -offset, offset, samples=3)
     with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        # Still pixels, fill="color", a background, or traced arrays: nothing to warn about.
         warnings.simplefilter("error", UserWarning)
         backend.ops.bezier_scatter(color, depth, -offset, offset, samples=3, fill="color")
         backend.ops.bezier_scatter(color, depth, -offset, offset, samples=3, background=color)
         backend.ops.bezier_scatter(color[:1], depth[:1], -offset[:1], offset[:1], samples=3)
         if backend.name == "jax":  # traced: no value to look at, no warning
             jax.jit(lambda c, d, o: backend.ops.bezier_scatter(c, d, -o, o, samples=3))(color, depth, offset)
+    with pytest.warns(UserWarning, match=r"no still pixel .* in image\(s\) \[1\]"):
+        backend.ops.bezier_scatter(color, depth, -offset, offset, samples=3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)  # once per process: a fit does not repeat it
+        backend.ops.bezier_scatter(color, depth, -offset, offset, samples=3)
 
 
-def test_reference_warns_without_still_pixels():
+def test_reference_warns_without_still_pixels(fresh_warning):
     offset = np.full((1, 2, 3, 3), 0.5)
     with pytest.warns(UserWarning, match="no still pixel"):
         reference.bezier_scatter(np.ones((1, 1, 3, 3)), np.ones((1, 1, 3, 3)), -offset, offset, samples=3)
