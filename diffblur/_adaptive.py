@@ -4,7 +4,7 @@ The image is cut into tiles; each tile's speed r (the largest |V| in the tile fo
 the tile's |NeighborMax| for `reconstruct`) picks one of a few sample-count classes: the smallest
 class with at least 2 r taps (one tap per pixel travelled along the path X - V ... X + V), or the
 full rate `samples` when no smaller class is enough. Still tiles (r <= STILL_SPEED, or below the
-early-out's EPSILON + 0.5 px when `reconstruct`'s early_out is on) take 0 taps: they return the
+early-out's EARLY_OUT_SPEED, 0.5 px more, when `reconstruct`'s early_out is on) take 0 taps: they return the
 image. A tile whose class is the full rate gets exactly the full-rate filter's result.
 
 The backends make the saving real by grouping the tiles of each class and running that class's
@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from diffblur.conventions import EPSILON
+from diffblur.conventions import EARLY_OUT_SPEED, STILL_SPEED
 
 __all__ = [
     "ADAPTIVE_TILE",
@@ -35,8 +35,6 @@ __all__ = [
 
 #: Tile size, in pixels, of gather_blur's adaptive classification (reconstruct uses its own tiles).
 ADAPTIVE_TILE = 16
-#: A tile whose speed is at most this (in pixels) is still: no motion, no taps.
-STILL_SPEED = EPSILON
 
 ADAPTIVE_COMPILED_NOTE = (
     "under torch.compile / jax.jit the tile classes are data-dependent sizes, so every class runs on "
@@ -66,8 +64,9 @@ def adaptive_classes(adaptive: object, samples: int) -> tuple[int, ...] | None:
 
 
 def still_speed(early_out: bool) -> float:
-    """The speed up to which a tile is still: EPSILON, or the early-out's EPSILON + 0.5 px."""
-    return EPSILON + 0.5 if early_out else STILL_SPEED
+    """The speed up to which a tile is still (`diffblur.conventions.STILL_SPEED`), or the early-out's
+    EARLY_OUT_SPEED."""
+    return EARLY_OUT_SPEED if early_out else STILL_SPEED
 
 
 def tile_sample_counts(speed: Any, classes: tuple[int, ...], still: float, xp: Any) -> Any:

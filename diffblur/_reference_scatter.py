@@ -18,7 +18,7 @@ from diffblur._scatter_options import (
     DEFAULT_MAX_SAMPLES,
     DEFAULT_NORMALIZATION,
     DEFAULT_SHUTTER,
-    DEFAULT_SOFT_Z_EXTENT,
+    DEFAULT_RELATIVE_Z_EXTENT,
     FILLS,
     MID_PREV_TIME,
     length_times,
@@ -27,8 +27,9 @@ from diffblur._scatter_options import (
     point_times,
     resolve_options,
     resolve_path,
+    warn_without_still,
 )
-from diffblur.conventions import DEPTH_CHANNELS
+from diffblur.conventions import DEPTH_CHANNELS, STILL_SPEED
 from diffblur.shutters import ShutterWindow, get_shutter
 
 __all__ = ["bezier_control_points", "bezier_scatter", "still_fill"]
@@ -164,12 +165,13 @@ def bezier_scatter(
     fill: str = DEFAULT_FILL,
     background: np.ndarray | None = None,
     background_weight: float = DEFAULT_BACKGROUND_WEIGHT,
-    soft_z_extent: float | np.ndarray = DEFAULT_SOFT_Z_EXTENT,
+    soft_z_extent: float | np.ndarray | None = None,
+    relative_z_extent: float | np.ndarray = DEFAULT_RELATIVE_Z_EXTENT,
 ) -> np.ndarray:
     """Seed 003's scatter: every moving pixel splats its colour along its path over the exposure.
 
-    See `torch_impl.bezier_scatter` for the arguments. Per moving source pixel S (still pixels, whose
-    path is the point S itself, are skipped) and per point k at time t_k with shutter mass m_k, the
+    See `torch_impl.bezier_scatter` for the arguments. Per moving source pixel S (still pixels, which
+    move at most STILL_SPEED px, are skipped) and per point k at time t_k with shutter mass m_k, the
     point p_S(t_k) splats bilinearly onto up to four pixels D with weight
 
         omega = bilinear(D) * softDepthCompare(depth[D], depth[S], soft_z_extent) * m_k * f,
@@ -196,7 +198,10 @@ def bezier_scatter(
     batch, channels, height, width = checks.require_image("color", color.shape)
     checks.require_image("depth", depth.shape, channels=DEPTH_CHANNELS)
     fill = checks.require_choice("fill", fill, FILLS)
-    extent = float(soft_z_extent)
+    relative, extent = checks.depth_band(soft_z_extent, relative_z_extent)
+    extent = float(extent)
+    if relative:  # the band relative to depth: compare log depths (`diffblur.checks.depth_band`)
+        depth, extent = np.log(depth), math.log1p(extent)
     window = get_shutter(shutter)
 
     def curve(b: int, i: int, j: int):
@@ -205,7 +210,7 @@ def bezier_scatter(
         if path == "arc":
             center, angle = arc_center[b, :, i, j], float(arc_angle[b, 0, i, j])
             radius = math.hypot(*(x - center))
-            return (angle != 0.0 and radius != 0.0), (lambda t: _arc_point(center, angle, x, t)), (lambda t: abs(angle) * radius)
+            return abs(angle) * radius > STILL_SPEED, (lambda t: _arc_point(center, angle, x, t)), (lambda t: abs(angle) * radius)
         offsets = [offset_prev[b, :, i, j], offset_next[b, :, i, j]]
         if degree == 1:
             positions = [x + offsets[0], x + offsets[1]]
@@ -215,7 +220,7 @@ def bezier_scatter(
             offsets.append(offset_mid_prev[b, :, i, j])
             positions = [x + offsets[0], x + offsets[2], x, x + offsets[1]]
         control = bezier_control_points(positions, degree)
-        moving = any(np.any(o != 0) for o in offsets)
+        moving = any(math.hypot(*o) > STILL_SPEED for o in offsets)
         return moving, (lambda t: _bezier_point(control, 0.5 * (t + 1.0))), (lambda t: _bezier_speed(control, 0.5 * (t + 1.0)))
 
     if samples is None:
@@ -250,6 +255,8 @@ def bezier_scatter(
                         accumulated[b, :, row, column] += omega * color[b, :, i, j]
                         alpha[b, 0, row, column] += omega
 
+    if background is None and fill == "still":
+        warn_without_still(moving_pixels[:, 0], stacklevel=2)
     if background is None:
         background = color if fill == "color" else still_fill(color, (~moving_pixels).astype(color.dtype))
     fill = np.where(moving_pixels, background, color)

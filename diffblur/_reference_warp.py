@@ -13,10 +13,11 @@ from diffblur._warp_options import (
     DEFAULT_ITERATIONS,
     accumulate_options,
     instant_masses,
-    path_offset,
+    lookup_offset,
     require_path,
     warp_blend_options,
 )
+from diffblur.conventions import DEFAULT_SHUTTER
 from diffblur.shutters import ShutterWindow
 
 __all__ = ["accumulate_warps", "warp_blend"]
@@ -33,12 +34,12 @@ def accumulate_warps(
     velocity: np.ndarray | None,
     *,
     instants: int = DEFAULT_INSTANTS,
-    shutter: str | ShutterWindow = "box",
+    shutter: str | ShutterWindow = DEFAULT_SHUTTER,
     sampling: str = "bilinear",
     offset_prev: np.ndarray | None = None,
     offset_next: np.ndarray | None = None,
 ) -> np.ndarray:
-    """The accumulation buffer on the image: sum_k m_k C[X - p(t_k)[X]] over `instants` instants
+    """The accumulation buffer on the image: sum_k m_k C[X + p(-t_k)[X]] over `instants` instants
     t_k (stratum midpoints), m_k the shutter's mass on stratum k, p the path of the point seen at X
     (t V, or the parabola through offset_prev, 0, offset_next)."""
     o = accumulate_options(instants=instants, shutter=shutter, sampling=sampling)
@@ -54,8 +55,8 @@ def accumulate_warps(
                     v = None if velocity is None else velocity[b, :, i, j]
                     prev = None if offset_prev is None else offset_prev[b, :, i, j]
                     nxt = None if offset_next is None else offset_next[b, :, i, j]
-                    px, py = path_offset(t, v, prev, nxt)
-                    out[b, :, i, j] += mass * sample(color[b], j - px, i - py)
+                    px, py = lookup_offset(t, v, prev, nxt)
+                    out[b, :, i, j] += mass * sample(color[b], j + px, i + py)
     return out
 
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import warnings
 from typing import Any
 
 import numpy as np
@@ -37,7 +38,7 @@ __all__ = [
     "DEFAULT_MAX_SAMPLES",
     "DEFAULT_NORMALIZATION",
     "DEFAULT_SHUTTER",
-    "DEFAULT_SOFT_Z_EXTENT",
+    "DEFAULT_RELATIVE_Z_EXTENT",
     "DEGREES",
     "DEFAULT_FILL",
     "FILLS",
@@ -49,6 +50,9 @@ __all__ = [
     "curve_position",
     "has_constant_parameters",
     "length_times",
+    "moving_mask",
+    "no_still_message",
+    "warn_without_still",
     "point_count",
     "point_masses",
     "point_times",
@@ -82,13 +86,15 @@ FILLS = ("still", "color")
 DEFAULT_FILL = "still"
 #: Bezier degrees: 1 (segment), 2 (seed 003's quadratic), 3 (seed 003 sec. 5.1's cubic).
 DEGREES = (1, 2, 3)
-#: Seed 003 weighs the points of a curve with a Gaussian.
-DEFAULT_SHUTTER = "gaussian"
+#: The project's one default shutter (`diffblur.conventions.DEFAULT_SHUTTER`, the box), as the other
+#: ops. Seed 003 weighs the points of a curve with a Gaussian; pass shutter="gaussian" for that.
+DEFAULT_SHUTTER = conventions.DEFAULT_SHUTTER
 #: Cap of the automatic point count (one point per pixel of the longest curve).
 DEFAULT_MAX_SAMPLES = 32
-#: Depth units: a splat counts fully where its source is in front of the destination or level with
-#: it, fading to nothing `soft_z_extent` behind; the same default as reconstruct's.
-DEFAULT_SOFT_Z_EXTENT = conventions.DEFAULT_SOFT_Z_EXTENT
+#: A splat counts fully where its source is in front of the destination or level with it, fading to
+#: nothing a fraction DEFAULT_RELATIVE_Z_EXTENT of the destination's depth behind (or
+#: `soft_z_extent` depth units behind when that is given); the same default as reconstruct's.
+DEFAULT_RELATIVE_Z_EXTENT = conventions.DEFAULT_RELATIVE_Z_EXTENT
 #: Seed 003's w_b (sec. 4), used by normalization="paper".
 DEFAULT_BACKGROUND_WEIGHT = 5.0
 #: The instant of the cubic's extra position (seed 003 sec. 5.1 names t = -1/2 or t = -2).
@@ -239,6 +245,60 @@ def polyline_length(kind: str, terms: tuple, x: Any, y: Any, xp: Any, hypot: Any
             length = piece if length is None else length + piece
         previous = (px, py)
     return length
+
+
+def moving_mask(kind: str, offsets: tuple, x: Any, y: Any) -> Any:
+    """(B, H, W) bool, in the arrays' own ops (NumPy, torch or jax.numpy): the pixels whose point moves
+    more than `diffblur.conventions.STILL_SPEED` px. The rest are still: they splat nothing and, with
+    fill="still", are the scene behind the moving ones. Float leftovers of a renderer (1e-6 px) on a
+    static surface leave it still.
+
+    kind "bezier": offsets = the (B, 2, H, W) offsets given (t = -1, +1 and, for the cubic, -1/2);
+    moving where any is longer than STILL_SPEED. "arc": offsets = (center (B, 2, H, W), angle
+    (B, 1, H, W)); moving where |angle| * radius, the arc length to t = 1, exceeds it. x, y: pixel
+    centres broadcasting against (B, H, W)."""
+    limit = conventions.STILL_SPEED**2
+    if kind == "arc":
+        center, angle = offsets
+        dx, dy = x - center[:, 0], y - center[:, 1]
+        return angle[:, 0] * angle[:, 0] * (dx * dx + dy * dy) > limit
+    moving = None
+    for offset in offsets:
+        far = offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1] > limit
+        moving = far if moving is None else moving | far
+    return moving
+
+
+#: Whether `warn_without_still` has warned in this process.
+_warned_without_still = False
+
+
+def warn_without_still(moving: np.ndarray, stacklevel: int) -> None:
+    """Warn that fill="still" found no still pixel in an image of the batch (it then fills as
+    fill="color"); moving is the (B, H, W) `moving_mask` as NumPy. Once per process: a fit calls
+    the scatter hundreds of times on the same images (`fitting`'s global model moves every pixel),
+    and one warning says what there is to say."""
+    global _warned_without_still
+    if _warned_without_still:
+        return
+    message = no_still_message(moving)
+    if message is not None:
+        _warned_without_still = True
+        warnings.warn(message, UserWarning, stacklevel=stacklevel + 1)
+
+
+def no_still_message(moving: np.ndarray) -> str | None:
+    """The warning for fill="still" when an image of the batch has no still pixel, else None; moving is
+    the (B, H, W) `moving_mask` as NumPy."""
+    images = [b for b in range(moving.shape[0]) if moving[b].all()]
+    if not images:
+        return None
+    return (
+        f"bezier_scatter(fill='still') found no still pixel (one that moves at most "
+        f"STILL_SPEED={conventions.STILL_SPEED} px) in image(s) {images} of the batch: every moving pixel "
+        f"there fills its uncovered time with its own colour, as fill='color'. Pass fill='color' to say "
+        f"so, or a `background` (warned once per process)"
+    )
 
 
 def point_count(max_length: float, max_samples: int) -> int:

@@ -4,9 +4,12 @@ sec. 3-4). Defaults, option checks, the instants and the warp schedule live here
 reference and both backends resolve them the same way.
 
 accumulate_warps. The accumulation buffer renders the scene at N instants of the exposure and
-averages the renderings. Done on the image, rendering at instant t is a warp: pixel X shows what
-its path brings there, C[X - p(t)], with p(t) the path of the point seen at X (a backward lookup,
-as a texture-offset warp does). The instants are the midpoints of N equal strata and each carries
+averages the renderings. Done on the image, rendering at instant t is a warp: pixel X shows the
+point that is there at t. That point, seen at Y at t = 0, satisfies Y + p_Y(t) = X; with the paths
+of neighbouring points alike (p_Y ~ p_X) it is where X's own path is at -t, Y = X + p(-t), and the
+warp reads C[X + p(-t)] (a backward lookup, as a texture-offset warp does). Along a curved path this
+keeps the curve's bend; C[X - p(t)] would mirror it (the same for a straight path, p(-t) = -p(t)).
+The instants are the midpoints of N equal strata and each carries
 the shutter's exact mass on its stratum, so with a linear path (p(t) = t V) and an odd N this is
 `gather_blur(samples=N)`; the difference is that N may be any count (an accumulation buffer takes
 as many renderings as it can afford, 2, 4, ...) and the path may be curved (offsets). With few
@@ -57,6 +60,7 @@ __all__ = [
     "WarpBlendOptions",
     "accumulate_options",
     "instant_masses",
+    "lookup_offset",
     "path_offset",
     "warp_blend_options",
 ]
@@ -99,6 +103,12 @@ def instant_masses(options: AccumulateOptions, xp: Any, dtype: Any = None) -> li
     masses = stratum_weights(options.window, times, 1.0 / options.instants, xp)
     masses = masses / masses.sum()
     return [masses[k] for k in range(options.instants)]
+
+
+def lookup_offset(t: float, velocity: Any, offset_prev: Any, offset_next: Any) -> Any:
+    """Where `accumulate_warps` reads pixel X at instant t, relative to X: p(-t), the position of
+    X's own path at -t (module docstring). Arithmetic only, so any array type works."""
+    return path_offset(-t, velocity, offset_prev, offset_next)
 
 
 def path_offset(t: float, velocity: Any, offset_prev: Any, offset_next: Any) -> Any:

@@ -141,7 +141,7 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("bezier_scatter", "degree 2, 32 points", _scatter(degree=2, samples=32, shutter="box"), _SC, _SC),
     Setting("bezier_scatter", "degree 3, 16 points", _scatter(degree=3, samples=16, shutter="box"), _SC3, _SC3),
     Setting("bezier_scatter", "degree 2, 16 points, paper normalisation", _scatter(degree=2, samples=16, shutter="box", normalization="paper"), _SC, _SC),
-    Setting("bezier_scatter", "degree 2, 16 points, gaussian shutter", _scatter(degree=2, samples=16), _SC, _SC),
+    Setting("bezier_scatter", "degree 2, 16 points, gaussian shutter", _scatter(degree=2, samples=16, shutter="gaussian"), _SC, _SC),
     Setting(
         "bezier_scatter",
         "degree 2, 16 points, background",
@@ -754,6 +754,10 @@ def _write(out_dir, results: dict) -> None:
     os.makedirs(docs, exist_ok=True)
     with open(os.path.join(docs, "benchmarks.json"), "w") as f:
         json.dump(results, f, indent=1, allow_nan=True)
-    with open(os.path.join(out_dir, "BENCHMARKS.md"), "w") as f:
-        f.write(_markdown(results) + "\n")
+    from diffblur.mitsuba_bench import kept_section
+
+    path = os.path.join(out_dir, "BENCHMARKS.md")
+    renderer = kept_section(path)  # the Mitsuba scenes' section has its own command: keep it
+    with open(path, "w") as f:
+        f.write(_markdown(results) + "\n" + ("" if renderer is None else "\n" + renderer + "\n"))
     _plot(os.path.join(docs, "pareto.png"), results)

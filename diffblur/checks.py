@@ -169,3 +169,19 @@ def require_int_choice(name: str, value: object, allowed: Sequence[int]) -> int:
 
 
 __all__ += ["require_int_choice"]
+
+
+def depth_band(soft_z_extent: object, relative_z_extent: object) -> tuple[bool, object]:
+    """Which depth band soft_depth_compare takes: (relative, extent).
+
+    soft_z_extent given (not None): the band in depth units, (False, soft_z_extent). Else the band
+    relative to depth, (True, relative_z_extent): the backends compare log depths with the band
+    log(1 + relative_z_extent), so that z_b counts as in front of z_a up to z_b = z_a (1 + r) and
+    rescaling depth changes nothing. Numbers are checked here (> 0); arrays by the backend."""
+    if soft_z_extent is not None:
+        if _is_real_number(soft_z_extent) or isinstance(soft_z_extent, bool):
+            soft_z_extent = require_positive_number("soft_z_extent", soft_z_extent)
+        return False, soft_z_extent
+    if _is_real_number(relative_z_extent) or isinstance(relative_z_extent, bool):
+        relative_z_extent = require_positive_number("relative_z_extent", relative_z_extent)
+    return True, relative_z_extent

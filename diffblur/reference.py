@@ -23,8 +23,10 @@ from diffblur.conventions import (
     CYLINDER_OUTER,
     DEFAULT_MAX_RADIUS,
     DEFAULT_MIN_RADIUS,
+    DEFAULT_RELATIVE_Z_EXTENT,
     DEFAULT_SAMPLES,
-    DEFAULT_SOFT_Z_EXTENT,
+    DEFAULT_SHUTTER,
+    EARLY_OUT_SPEED,
     EPSILON,
     IGN_A,
     IGN_B,
@@ -234,7 +236,7 @@ def gather_blur(
     velocity: np.ndarray,
     *,
     samples: int = DEFAULT_SAMPLES,
-    shutter: str | ShutterWindow = "box",
+    shutter: str | ShutterWindow = DEFAULT_SHUTTER,
     sampling: str = "bilinear",
     adaptive: bool | tuple[int, ...] = False,
     pyramid: bool = False,
@@ -284,10 +286,11 @@ def reconstruct(
     *,
     max_radius: float = DEFAULT_MAX_RADIUS,
     samples: int = DEFAULT_SAMPLES,
-    soft_z_extent: float = DEFAULT_SOFT_Z_EXTENT,
+    soft_z_extent: float | None = None,
+    relative_z_extent: float = DEFAULT_RELATIVE_Z_EXTENT,
     jitter: str | np.ndarray = "noise",
     sampling: str = "bilinear",
-    shutter: str | ShutterWindow = "box",
+    shutter: str | ShutterWindow = DEFAULT_SHUTTER,
     early_out: bool | None = None,
     directions: str = "neighbor",
     min_radius: float = DEFAULT_MIN_RADIUS,
@@ -297,7 +300,7 @@ def reconstruct(
     """Seed 000 Listing 1, the reconstruction filter, pixel by pixel.
 
     TileMax and NeighborMax with tile = ceil(max_radius); per pixel X the dominant neighbourhood
-    velocity v_N; the early-out where |v_N| <= EPSILON + 0.5 px (on by default for "nearest" only,
+    velocity v_N; the early-out where |v_N| <= EARLY_OUT_SPEED (0.501 px) (on by default for "nearest" only,
     so the differentiable default hides no parameter); the centre weight 1 / |V[X]|; S - 1 taps
     Y = X + v_N t at t = mix(-1, 1, (i + j + 1) / (S + 1)) with the whole filter jittered by j;
     the three cases from soft_depth_compare, cone and cylinder; each tap also weighted by the
@@ -313,6 +316,7 @@ def reconstruct(
         max_radius=max_radius,
         samples=samples,
         soft_z_extent=soft_z_extent,
+        relative_z_extent=relative_z_extent,
         sampling=sampling,
         shutter=shutter,
         early_out=early_out,
@@ -322,13 +326,15 @@ def reconstruct(
         pyramid=pyramid,
     )
     if o.classes is not None:  # each tile: its class's filter, or the image where still
-        options = dict(max_radius=max_radius, soft_z_extent=soft_z_extent, jitter=jitter, sampling=sampling, shutter=shutter)
+        options = dict(max_radius=max_radius, soft_z_extent=soft_z_extent, relative_z_extent=relative_z_extent, jitter=jitter, sampling=sampling, shutter=shutter)
         options.update(early_out=o.early_out, directions=directions, min_radius=min_radius)
         speeds = np.hypot(*np.moveaxis(neighbor_max(tile_max(velocity, o.tile)), 1, 0))
         counts = tile_sample_counts(speeds, o.classes, still_speed(o.early_out), np)
         by_count = {c: reconstruct(color, velocity, depth, samples=c, **options) for c in o.classes}
         return select_by_tile(color, by_count, counts, o.tile)
     samples, tile, window, early_out, sampling = o.samples, o.tile, o.window, o.early_out, o.sampling
+    if o.log_depth:  # the band relative to depth: compare log depths (`diffblur.checks.depth_band`)
+        depth = np.log(depth)
     batch, _, height, width = color.shape
     if isinstance(jitter, str):
         checks.require_choice("jitter", jitter, JITTER_MODES)
@@ -346,7 +352,7 @@ def reconstruct(
         for i in range(height):
             for j in range(width):
                 v_n = neighbors[b, :, i // tile, j // tile]
-                if early_out and math.hypot(*v_n) <= EPSILON + 0.5:
+                if early_out and math.hypot(*v_n) <= EARLY_OUT_SPEED:
                     out[b, :, i, j] = color[b, :, i, j]
                     continue
                 v_x = velocity[b, :, i, j]
@@ -370,8 +376,8 @@ def reconstruct(
                         lod = float(level_of_detail(np.array(2.0 * math.hypot(*direction) / (samples + 1)), len(levels[b]), np))
                         c_y = numpy_sample_levels(levels[b], x, y, lod)
                     speed_y = max(math.hypot(*v_y), min_radius)
-                    front = soft_depth_compare(z_x, z_y, soft_z_extent)  # Y in front of X
-                    back = soft_depth_compare(z_y, z_x, soft_z_extent)  # Y behind X
+                    front = soft_depth_compare(z_x, z_y, o.soft_z_extent)  # Y in front of X
+                    back = soft_depth_compare(z_y, z_x, o.soft_z_extent)  # Y behind X
                     speeds_y, speeds_x, distances = np.array(speed_y), np.array(speed_x), np.array(distance)
                     alpha = (
                         front * cone(distances, speeds_y)  # case 1: blurry Y in front of any X

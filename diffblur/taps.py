@@ -63,6 +63,8 @@ class ReconstructOptions:
 
     tile: int
     samples: int
+    #: The band of soft_depth_compare in the depths compared: depth units, or log(1 + r) when
+    #: `log_depth` (the band relative to depth, `diffblur.checks.depth_band`).
     soft_z_extent: float
     sampling: str
     window: ShutterWindow
@@ -73,13 +75,16 @@ class ReconstructOptions:
     classes: tuple[int, ...] | None = None
     #: Taps read colour from a pre-filtered pyramid where they are farther apart than a pixel.
     pyramid: bool = False
+    #: The depths are compared as log depth (a band relative to depth).
+    log_depth: bool = False
 
 
 def reconstruct_options(
     *,
     max_radius: float,
     samples: int,
-    soft_z_extent: float,
+    soft_z_extent: float | None,
+    relative_z_extent: float,
     sampling: str,
     shutter: Any,
     early_out: bool | None,
@@ -96,10 +101,12 @@ def reconstruct_options(
 
     sampling = checks.require_choice("sampling", sampling, SAMPLING_MODES)
     samples = checks.require_odd_int("samples", samples)
+    relative, extent = checks.depth_band(soft_z_extent, relative_z_extent)
+    extent = checks.require_positive_number("relative_z_extent" if relative else "soft_z_extent", extent)
     return ReconstructOptions(
         tile=math.ceil(checks.require_positive_number("max_radius", max_radius)),
         samples=samples,
-        soft_z_extent=checks.require_positive_number("soft_z_extent", soft_z_extent),
+        soft_z_extent=math.log1p(extent) if relative else extent,
         sampling=sampling,
         window=get_shutter(shutter),
         early_out=sampling == "nearest" if early_out is None else bool(early_out),
@@ -107,4 +114,5 @@ def reconstruct_options(
         min_radius=checks.require_positive_number("min_radius", min_radius),
         classes=adaptive_classes(adaptive, samples),
         pyramid=pyramid_option(pyramid, adaptive, sampling),
+        log_depth=relative,
     )

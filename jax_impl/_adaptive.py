@@ -20,7 +20,7 @@ import numpy as np
 from jax import Array
 
 from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED, class_pixels, still_speed, tile_sample_counts
-from diffblur.conventions import EPSILON
+from diffblur.conventions import EARLY_OUT_SPEED
 from diffblur.taps import gather_tap_times, reconstruct_tap_time, shutter_factor, stratum_weights
 from jax_impl._primitives import _cone, _cylinder, _safe_length, _soft_depth_compare, neighbor_max, tile_max
 from jax_impl._sampling import _clamp, position_dtype, widen_window
@@ -222,7 +222,7 @@ def _reconstruct_rows(
         total = total + (alpha * c_y).astype(wide)
     out = total / weight
     if early_out:
-        out = jnp.where(speed_n <= EPSILON + 0.5, c_x, out)
+        out = jnp.where(speed_n <= EARLY_OUT_SPEED, c_x, out)
     return out.astype(dtype)
 
 

@@ -8,7 +8,7 @@ from jaxtyping import Array, Float
 from diffblur import checks
 from diffblur._adaptive import adaptive_classes
 from diffblur._pyramid import pyramid_option
-from diffblur.conventions import DEFAULT_SAMPLES, SAMPLING_MODES, VECTOR_CHANNELS
+from diffblur.conventions import DEFAULT_SAMPLES, DEFAULT_SHUTTER, SAMPLING_MODES, VECTOR_CHANNELS
 from diffblur.shutters import ShutterWindow, get_shutter
 from diffblur.taps import gather_tap_times, stratum_weights
 from jax_impl import _checks
@@ -22,7 +22,7 @@ def gather_blur(
     velocity: Float[Array, "b 2 h w"],
     *,
     samples: int = DEFAULT_SAMPLES,
-    shutter: str | ShutterWindow = "box",
+    shutter: str | ShutterWindow = DEFAULT_SHUTTER,
     sampling: str = "bilinear",
     adaptive: bool | tuple[int, ...] = False,
     pyramid: bool = False,

@@ -11,10 +11,11 @@ from diffblur import checks, reference
 from diffblur.conventions import (
     DEFAULT_MAX_RADIUS,
     DEFAULT_MIN_RADIUS,
+    DEFAULT_RELATIVE_Z_EXTENT,
     DEFAULT_SAMPLES,
-    DEFAULT_SOFT_Z_EXTENT,
+    DEFAULT_SHUTTER,
     DEPTH_CHANNELS,
-    EPSILON,
+    EARLY_OUT_SPEED,
     JITTER_MODES,
     VECTOR_CHANNELS,
 )
@@ -58,10 +59,11 @@ def reconstruct(
     *,
     max_radius: float = DEFAULT_MAX_RADIUS,
     samples: int = DEFAULT_SAMPLES,
-    soft_z_extent: float = DEFAULT_SOFT_Z_EXTENT,
+    soft_z_extent: float | None = None,
+    relative_z_extent: float = DEFAULT_RELATIVE_Z_EXTENT,
     jitter: str | Array = "noise",
     sampling: str = "bilinear",
-    shutter: str | ShutterWindow = "box",
+    shutter: str | ShutterWindow = DEFAULT_SHUTTER,
     early_out: bool | None = None,
     directions: str = "neighbor",
     min_radius: float = DEFAULT_MIN_RADIUS,
@@ -86,12 +88,16 @@ def reconstruct(
         depth: (B, 1, H, W) positive depth, larger = farther.
         max_radius: the largest blur radius k in pixels; tiles are ceil(k) pixels.
         samples: taps S, an odd integer >= 1.
-        soft_z_extent: depth band of soft_depth_compare, in depth units, > 0.
+        soft_z_extent: depth band of soft_depth_compare in depth units, a number > 0; None
+            (default): the band relative to depth, `relative_z_extent`.
+        relative_z_extent: with soft_z_extent=None, the band as a fraction of depth, > 0: Y counts
+            as in front of X up to z_Y = z_X (1 + relative_z_extent), fading linearly in log depth,
+            so that the output does not depend on the scene's depth units.
         jitter: "noise" (interleaved gradient noise, deterministic), "none", or a (B, 1, H, W)
             array with values in [-0.5, 0.5].
         sampling: "bilinear" (differentiable through the tap positions) or "nearest" (the paper).
         shutter: a window name or `ShutterWindow` (its parameters may be arrays to fit).
-        early_out: return C[X] where |v_N| <= EPSILON + 0.5 px, as the paper does. None (default)
+        early_out: return C[X] where |v_N| <= EARLY_OUT_SPEED (0.501 px), as the paper does. None (default)
             turns it on for "nearest" only: on the differentiable path it would zero the gradient
             of a velocity that starts small.
         directions: "neighbor" (the paper) or "neighbor_and_own": odd taps along V[X] instead
@@ -136,6 +142,7 @@ def reconstruct(
         max_radius=max_radius,
         samples=samples,
         soft_z_extent=soft_z_extent,
+        relative_z_extent=relative_z_extent,
         sampling=sampling,
         shutter=shutter,
         early_out=early_out,
@@ -145,6 +152,8 @@ def reconstruct(
         pyramid=pyramid,
     )
     jitter = _jitter_array(jitter, color)
+    if o.log_depth:  # the band relative to depth: compare log depths (`diffblur.checks.depth_band`)
+        depth = jnp.log(depth)
     if fused is not False:
         from diffblur._fused import use_fused
         from jax_impl._fused import fused_reconstruct, unfused_reason
@@ -224,5 +233,5 @@ def _reconstruct(color, velocity, depth, tile, samples, soft_z_extent, jitter, s
     # a weight of 1 / |V| (1e-4 at 1e4 px) squares to 0 in float16, an infinite gradient.
     out = total / weight
     if early_out:
-        out = jnp.where(speed_n <= EPSILON + 0.5, color.astype(wide), out)
+        out = jnp.where(speed_n <= EARLY_OUT_SPEED, color.astype(wide), out)
     return out.astype(color.dtype)

@@ -17,12 +17,13 @@ from diffblur._scatter_options import (
     DEFAULT_MAX_SAMPLES,
     DEFAULT_NORMALIZATION,
     DEFAULT_SHUTTER,
-    DEFAULT_SOFT_Z_EXTENT,
+    DEFAULT_RELATIVE_Z_EXTENT,
     FILLS,
     MID_PREV_TIME,
     constant_masses,
     curve_point,
     has_constant_parameters,
+    moving_mask,
     point_count,
     point_masses,
     point_times,
@@ -30,6 +31,7 @@ from diffblur._scatter_options import (
     resolve_options,
     resolve_path,
     traced_count_message,
+    warn_without_still,
 )
 from diffblur.conventions import DEPTH_CHANNELS, VECTOR_CHANNELS
 from diffblur.shutters import ShutterWindow, get_shutter
@@ -43,15 +45,16 @@ from jax_impl._sampling import pixel_grid, position_dtype, widen_window
 _CHUNK_PIXEL_POINTS = 1 << 18
 
 
-def _extent(value: object, like: Array) -> Array:
-    """soft_z_extent: a number > 0 or a 0-d array > 0, as a 0-d array of like's dtype."""
+def _extent(value: object, like: Array, name: str = "soft_z_extent") -> Array:
+    """soft_z_extent (or relative_z_extent, `name`): a number > 0 or a 0-d array > 0, as a 0-d array
+    of like's dtype."""
     if isinstance(value, (jax.Array, np.ndarray)):
-        value = _checks.floating_array("soft_z_extent", value)
+        value = _checks.floating_array(name, value)
         if value.ndim != 0:
-            raise ValueError(f"soft_z_extent must be a number or a 0-d array, got shape {tuple(value.shape)}")
-        _checks.same_dtype("soft_z_extent", value, "depth", like)
-        return _checks.positive_values("soft_z_extent", value)
-    return jnp.asarray(checks.require_positive_number("soft_z_extent", value), dtype=like.dtype)
+            raise ValueError(f"{name} must be a number or a 0-d array, got shape {tuple(value.shape)}")
+        _checks.same_dtype(name, value, "depth", like)
+        return _checks.positive_values(name, value)
+    return jnp.asarray(checks.require_positive_number(name, value), dtype=like.dtype)
 
 
 def _bezier_terms(degree: int, prev: Array, nxt: Array, mid: Array | None) -> tuple:
@@ -184,7 +187,8 @@ def bezier_scatter(
     fill: str = DEFAULT_FILL,
     background: Float[Array, "b c h w"] | None = None,
     background_weight: float = DEFAULT_BACKGROUND_WEIGHT,
-    soft_z_extent: float | Array = DEFAULT_SOFT_Z_EXTENT,
+    soft_z_extent: float | Array | None = None,
+    relative_z_extent: float | Array = DEFAULT_RELATIVE_Z_EXTENT,
     fused: bool | None = None,
 ) -> Float[Array, "b c h w"]:
     """Scatter every moving pixel's colour along its curved path over the exposure (seed 003).
@@ -194,9 +198,10 @@ def bezier_scatter(
     B1 = 2 p(0) - (p(-1) + p(1)) / 2 so that B(1/2) = p(0) (seed 003's erratum fixed); or a circular
     arc. `samples` points at the midpoints t_k of equal strata of the exposure, each carrying the
     shutter's mass m_k on its stratum, are splatted bilinearly (differentiable in the positions) onto
-    the pixels around them, where the source is in front of or within `soft_z_extent` behind the
+    the pixels around them, where the source is in front of or within the depth band behind the
     destination's depth (seed 000's softDepthCompare; no depth write), and summed into A (colour)
-    and alpha (weight). Pixels that do not move are skipped (a mask: shapes never depend on data).
+    and alpha (weight). Still pixels, whose point moves at most `diffblur.conventions.STILL_SPEED`
+    px (a renderer's float leftovers included), are skipped (a mask: shapes never depend on data).
 
     Normalisation, with fill = color where the pixel is still; where it moves, `background` if given,
     else (fill="still", the default) the colour behind it estimated from the still pixels by push-pull,
@@ -230,13 +235,15 @@ def bezier_scatter(
             jax.jit pass an int). Curves longer than the count in pixels are dotted.
         max_samples: the cap of the automatic count, an int >= 1.
         shutter: a name in `diffblur.shutters.SHUTTERS` or a `ShutterWindow` whose parameters may be
-            arrays to fit; seed 003 weighs its curves with a Gaussian.
+            arrays to fit. Default: the box, as every op (`diffblur.conventions.DEFAULT_SHUTTER`);
+            seed 003 weighs its curves with a Gaussian (shutter="gaussian").
         normalization: "coverage" or "paper" (above).
         fill: what a moving pixel shows for the part of the exposure nothing covers it, without a
             `background`: "still" (default), an estimate of the scene behind it from the pixels that
             do not move (push-pull: the still pixels' colours averaged over 2 x 2 blocks down to one
             pixel, then filled back in from coarse to fine where a block has no still pixel; the
-            pixel's own colour where the image has none), or "color", its own colour. With a box
+            pixel's own colour where the image has none, with a UserWarning in eager mode, once per
+            process), or "color", its own colour. With a box
             shutter, degree 2, on the propeller (48 x 48 at 0.3 to 1.4 rad, and 128 x 128),
             translate, gears and crossing presets "still" is 3.4 to 7.8 dB (PSNR) closer to the
             ground truth than "color" and 3.8 to 7.5 dB closer than `gather_blur`. Still pixels in
@@ -245,7 +252,12 @@ def bezier_scatter(
             two-layer extension): moving pixels show it, not their own colour, for the part of the
             exposure nothing covers them.
         background_weight: seed 003's w_b, a number > 0 (used by "paper").
-        soft_z_extent: depth units, a number > 0 or a 0-d array (differentiable).
+        soft_z_extent: the depth band in depth units, a number > 0 or a 0-d array (differentiable);
+            None (default): the band relative to depth, `relative_z_extent`.
+        relative_z_extent: with soft_z_extent=None, the band as a fraction of the destination's
+            depth, a number > 0 or a 0-d array: a splat counts fully up to level with the
+            destination, fading linearly in log depth to nothing at z_source = z_dest (1 + r), so
+            that the output does not depend on the scene's depth units.
         fused: sum the splats and their backward in one parallel CPU loop each
             (`diffblur._fused_scatter`, numba, a host callback, also under jax.jit and jax.vmap),
             with the same result and gradients (tested) and O(pixels) memory; at 1280x720 on 2
@@ -297,9 +309,12 @@ def bezier_scatter(
         background = _checks.image("background", background)
         _checks.same_shape("background", background, "color", color)
     fill = checks.require_choice("fill", fill, FILLS)
-    extent = _extent(soft_z_extent, depth)
+    relative, band = checks.depth_band(soft_z_extent, relative_z_extent)
+    extent = _extent(band, depth, "relative_z_extent" if relative else "soft_z_extent")
     window = get_shutter(shutter)
     depth = _checks.finite_values("depth", _checks.positive_values("depth", depth))
+    if relative:  # the band relative to depth: compare log depths (`diffblur.checks.depth_band`)
+        depth, extent = jnp.log(depth), jnp.log1p(extent)
     given = {name: _checks.finite_values(name, value) for name, value in given.items()}
 
     if fused is not False:
@@ -314,6 +329,8 @@ def bezier_scatter(
     if samples is None:
         x, y = pixel_grid(color.shape[2], color.shape[3], color.dtype)
         samples = point_count(_longest(kind, _terms(kind, degree, given), x[None], y[None]), max_samples)
+    if fill == "still" and background is None:
+        _warn_without_still(kind, degree, given, color.shape[2], color.shape[3])
     if has_constant_parameters(window):
         masses = jnp.asarray(constant_masses(window, samples), dtype=wide)
     else:  # a shape parameter being fitted: the masses carry its gradient
@@ -333,6 +350,22 @@ def bezier_scatter(
         fill=fill,
         fused=fused,
     )
+
+
+def _moved_by(kind: str, degree: int, given: dict) -> tuple:
+    """What `moving_mask` reads: the offsets given, or the arc's (center, angle)."""
+    if kind == "arc":
+        return (given["arc_center"], given["arc_angle"])
+    return (given["offset_prev"], given["offset_next"]) + ((given["offset_mid_prev"],) if degree == 3 else ())
+
+
+def _warn_without_still(kind: str, degree: int, given: dict, height: int, width: int) -> None:
+    """fill="still"'s warning when an image has no still pixel; eager only (concrete arrays)."""
+    if any(isinstance(v, jax.core.Tracer) for v in given.values()):
+        return
+    y, x = np.mgrid[0:height, 0:width].astype(np.float64)
+    moved = tuple(np.asarray(v, dtype=np.float64) for v in _moved_by(kind, degree, given))
+    warn_without_still(moving_mask(kind, moved, x[None], y[None]), stacklevel=3)
 
 
 def _terms(kind: str, degree: int, given: dict[str, Array]) -> tuple:
@@ -392,12 +425,7 @@ def _scatter(
     wide = position_dtype(color.dtype)
     x, y = pixel_grid(height, width, color.dtype)
     terms = _terms(kind, degree, given)
-    if kind == "arc":
-        center, angle = terms
-        moving = (angle[:, 0] != 0) & ((x != center[:, 0]) | (y != center[:, 1]))
-    else:
-        offsets = [given["offset_prev"], given["offset_next"]] + ([given["offset_mid_prev"]] if degree == 3 else [])
-        moving = jnp.stack([jnp.any(v != 0, axis=1) for v in offsets]).any(axis=0)
+    moving = moving_mask(kind, _moved_by(kind, degree, given), x, y)
 
     if fused:
         from jax_impl._fused_scatter import fused_splat

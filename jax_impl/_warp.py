@@ -16,11 +16,11 @@ from diffblur._warp_options import (
     DEFAULT_ITERATIONS,
     accumulate_options,
     instant_masses,
-    path_offset,
+    lookup_offset,
     require_path,
     warp_blend_options,
 )
-from diffblur.conventions import VECTOR_CHANNELS
+from diffblur.conventions import DEFAULT_SHUTTER, VECTOR_CHANNELS
 from diffblur.shutters import ShutterWindow
 from jax_impl import _checks
 from jax_impl._sampling import pixel_grid, position_dtype, sample, widen_window
@@ -38,7 +38,7 @@ def accumulate_warps(
     velocity: Float[Array, "b 2 h w"] | None,
     *,
     instants: int = DEFAULT_INSTANTS,
-    shutter: str | ShutterWindow = "box",
+    shutter: str | ShutterWindow = DEFAULT_SHUTTER,
     sampling: str = "bilinear",
     offset_prev: Float[Array, "b 2 h w"] | None = None,
     offset_next: Float[Array, "b 2 h w"] | None = None,
@@ -46,8 +46,9 @@ def accumulate_warps(
     """The accumulation-buffer baseline on the image (seed 002 sec. 1): `instants` warped copies of
     the image, one per instant of the exposure, weighted by the shutter.
 
-    Copy k shows pixel X what its path brings there at instant t_k: C[X - p(t_k)], p(t) = t V[X]
-    (or the parabola through offset_prev, 0 and offset_next at t = -1, 0, 1). The instants are the
+    Copy k shows pixel X the point that is there at instant t_k: C[X + p(-t_k)], where X's own path
+    p (p(t) = t V[X], or the parabola through offset_prev, 0 and offset_next at t = -1, 0, 1) is at
+    -t_k, so a curved path keeps its bend (`diffblur._warp_options`). The instants are the
     midpoints of `instants` equal strata, each weighted by the shutter's mass on its stratum. With
     few instants and fast motion the copies separate (ghosting, seed 002 Figure 1); the brute-force
     reference of the trade. With a velocity and an odd count it equals `gather_blur(samples=instants)`.
@@ -87,8 +88,8 @@ def accumulate_warps(
     x, y = pixel_grid(height, width, color.dtype)
     out = jnp.zeros_like(color, dtype=wide)
     for t, mass in zip(o.times, masses):
-        p = path_offset(t, velocity, offset_prev, offset_next)
-        out = out + mass * sample(color, x - p[:, 0], y - p[:, 1], o.sampling)
+        p = lookup_offset(t, velocity, offset_prev, offset_next)
+        out = out + mass * sample(color, x + p[:, 0], y + p[:, 1], o.sampling)
     return out.astype(color.dtype)
 
 

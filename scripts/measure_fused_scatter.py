@@ -1,8 +1,8 @@
 """Measure bezier_scatter's fused CPU splats (diffblur._fused_scatter) against the tensor ops (issue 8).
 
 1280x720, float32, a uniform pan: the photograph and depth of `diffblur.bench.uniform_scene` with
-offsets (-V, +V), V = (8, 0) px, degree 2, the default Gaussian shutter, coverage normalisation and
-the push-pull fill; 16 points per curve (what samples=None picks for these 16 px paths). Forward
+offsets (-V, +V), V = (8, 0) px, degree 2, a Gaussian shutter (named: the default is the box),
+coverage normalisation and the push-pull fill; 16 points per curve (what samples=None picks for these 16 px paths). Forward
 and forward+backward (w.r.t. color, depth and both offsets) in PyTorch (eager; also samples=None,
 which measures the paths with tensor ops first) and JAX (jitted, compile time reported apart).
 
@@ -91,7 +91,7 @@ def main() -> None:
     print(f"{'path':<11} {'samples':>7} {'torch fwd':>10} {'torch f+b':>10} {'jax compile':>12} {'jax fwd':>9} {'jax f+b':>9}")
     paths = (("fused", None),) if args.fused_only else (("fused", None), ("tensor ops", False))
     for path, fused in paths:
-        options = dict(degree=2, samples=SAMPLES, fused=fused)
+        options = dict(degree=2, samples=SAMPLES, shutter="gaussian", fused=fused)
         torch_fwd, torch_both = torch_times(arrays, options, args.repeats)
         compile_ms, jax_fwd, jax_both = jax_times(arrays, options, args.repeats)
         print(f"{path:<11} {SAMPLES:>7} {torch_fwd:10.0f} {torch_both:10.0f} {compile_ms:12.0f} {jax_fwd:9.0f} {jax_both:9.0f}", flush=True)

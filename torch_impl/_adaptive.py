@@ -14,7 +14,7 @@ import torch
 from torch import Tensor
 
 from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED, class_pixels, still_speed, tile_sample_counts
-from diffblur.conventions import EPSILON
+from diffblur.conventions import EARLY_OUT_SPEED
 from diffblur.taps import gather_tap_times, reconstruct_tap_time, shutter_factor, stratum_weights
 from torch_impl._primitives import _cone, _cylinder, _safe_length, _soft_depth_compare, neighbor_max, tile_max
 from torch_impl._sampling import _clamp, position_dtype
@@ -177,7 +177,7 @@ def adaptive_reconstruct(color, velocity, depth, jitter, o) -> Tensor:
             total = total + alpha * c_y
         out = total / weight
         if o.early_out:
-            out = torch.where(speed_n <= EPSILON + 0.5, c_x.to(wide), out)
+            out = torch.where(speed_n <= EARLY_OUT_SPEED, c_x.to(wide), out)
         return out.to(color.dtype)
 
     return _compacted(color, counts, o.classes, tile, run)

@@ -274,12 +274,12 @@ def test_a_bright_pixel_deposits_its_energy_along_the_curve_not_the_chord(backen
 def test_degree_1_is_the_gather_on_a_uniform_translation(backend):
     """Every pixel moves by V: splatting bilinearly at X + t V is then sampling bilinearly at X - t V,
     and coverage is 1, so away from the borders the scatter equals `gather_blur` (same instants and
-    shutter masses), here with the default Gaussian shutter."""
+    shutter masses), here with a Gaussian shutter."""
     rng = np.random.default_rng(23)
     color = rng.random((1, 3, 20, 22))
     velocity = np.zeros((1, 2, 20, 22))
     velocity[:, 0], velocity[:, 1] = 2.3, -1.6
-    out = scatter(backend.name, color, np.full((1, 1, 20, 22), 2.0), -velocity, velocity, degree=1, samples=7)
+    out = scatter(backend.name, color, np.full((1, 1, 20, 22), 2.0), -velocity, velocity, degree=1, samples=7, shutter="gaussian")
     gathered = backend.numpy(backend.ops.gather_blur(backend.array(color), backend.array(velocity), samples=7, shutter="gaussian"))
     np.testing.assert_allclose(out[..., 4:-4, 4:-4], gathered[..., 4:-4, 4:-4], rtol=1e-12, atol=1e-12)
     assert np.abs(out - color)[..., 4:-4, 4:-4].max() > 0.1  # it did blur
