@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -89,8 +90,12 @@ def _blur(ctx: Context, velocity: Any, shutter: Any = None) -> Any:
     if o["method"] == "scatter":
         # Seed 003's scatter of linear motion (offsets -V, +V) with the user's shutter, coverage
         # normalisation and the push-pull fill: the blur that spreads an object over the pixels it
-        # passes, which a gather (a pixel reads along its own velocity only) cannot.
-        return ctx.be.ops.bezier_scatter(ctx.color, ctx.depth, -velocity, velocity, degree=1, samples=o["scatter_samples"], shutter=shutter, fused=fused)
+        # passes, which a gather (a pixel reads along its own velocity only) cannot. Where every pixel
+        # moves (a pan) the fill is each pixel's own colour, as meant: the op's warning about that
+        # would only repeat what the model says.
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=r"bezier_scatter\(fill='still'\) found no still pixel", category=UserWarning)
+            return ctx.be.ops.bezier_scatter(ctx.color, ctx.depth, -velocity, velocity, degree=1, samples=o["scatter_samples"], shutter=shutter, fused=fused)
     # Seed 000's taps span S / (S + 1) of the exposure: scale the velocity so the blur spans all of it
     # and the parameters are the scene's (see recover's docstring).
     span = (o["samples"] + 1.0) / o["samples"]
