@@ -25,13 +25,11 @@ rotation always goes through the arc scatter (method "arc"). The model's data (i
 velocity, the still background) goes to `recover` as keywords where it takes them, else on the model
 object (`fitting.MotionIds(ids=...)`, ...). Every fit runs noise-free on every backend; the noisy
 fits (the case's gaussian noise, sigma 0.01) run through the default method only and on the first
-backend only (torch; `--noisy-backends torch,jax` for both). The choice is the cost. On the shared
-2-core machine this was written on (load average ~4, the evaluation under `nice`), a JAX fit took 5-30
-s, ~17 s on average, nearly all of it compiling (`recover` jit-compiles anew for every fit, whatever
-the image size), and a torch fit 0.1-7 s (float64 reconstruct the slow one). The "before" table
-(commit 5e19627: 30 cases at 64 x 64, 88 torch and 48 JAX fits) took 17 min; with noise on both
-backends it would have taken ~30 min. Models and methods added since (layers, the scatter) bring the
-default run to 182 fits, ~26 min at the rate of a 4-case sample (8.5 s a fit). 64 px rather than 48:
+backend only (torch; `--noisy-backends torch,jax` for both). The choice is the cost: the default run is 178 fits, 22.8 min on the shared 2-core machine
+(2026-12-02). A torch fit took 0.2-37 s (layers and motion IDs of three objects the slow ones), a
+JAX fit the same where the model's compiled functions were already there (`recover` compiles each
+level's functions once per image size, model options, shutter and speed bucket, and reuses them),
+and 5-12 s where it compiled them. 64 px rather than 48:
 a fit's time hardly depends on the size here, and 48 px leaves no room for large fast objects.
 `--threads 1` (the default) runs each framework single-threaded: on a shared 2-core machine that is
 several times faster for 64 x 64 images (torch: a gather fit 2.2 s -> 0.23 s under load), and the
