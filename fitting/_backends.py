@@ -104,7 +104,7 @@ class JaxAdapter:
         return self.xp.einsum(spec, *xs)
 
     def __eq__(self, other: object) -> bool:
-        # An adapter is static data of the compiled functions (`run`): equal adapters share them.
+        # An adapter is static data of the compiled losses (`value_and_grad`): equal adapters share them.
         return isinstance(other, JaxAdapter) and other.dtype == self.dtype
 
     def __hash__(self) -> int:
@@ -112,8 +112,9 @@ class JaxAdapter:
 
     def value_and_grad(self, loss: Callable[..., Any], *args: Any) -> Callable[[np.ndarray], tuple[float, np.ndarray]]:
         """NumPy y -> (loss(y, *args), its gradient in y), float64: reverse mode (the fused kernels'
-        custom_vjp), compiled once per `loss` and per static part and shapes of the arguments (see
-        `run`), so that every level, pass and fit of the same size reuses it."""
+        custom_vjp), compiled (eqx.filter_jit) once per `loss` and per static part and shapes of the
+        arguments: arrays are traced; the adapter, a context's sizes and options and the model's
+        static options are static, so every level, pass and fit of the same size reuses it."""
         compiled = _compiled(loss, gradient=True)
 
         def evaluate(y: np.ndarray) -> tuple[float, np.ndarray]:
@@ -123,11 +124,11 @@ class JaxAdapter:
         return evaluate
 
     def run(self, f: Callable[..., Any], *args: Any) -> Any:
-        """f(*args) compiled (eqx.filter_jit): arrays are traced, everything else (the adapter, a
-        context's sizes and options, the model's static options) is static, so a module-level `f`
-        compiles once per static part and shapes and is reused across fits. Run op by op instead,
-        every small op of the scatter would compile on its own."""
-        return _compiled(f, gradient=False)(*args)
+        """f(*args) op by op: the pieces a fit runs a few times (search, coverage, speed, the final
+        render). Each op compiles once per shape and is reused by every later fit whatever its
+        shutter or speed, where a compiled whole would compile again for each (on the held-out
+        family that made the cheap models' JAX fits twice as slow)."""
+        return f(*args)
 
     def compiled(self, f: Callable[[Any], Any]) -> Callable[[Any], Any]:
         """f under eqx.filter_jit (compiled once per input shape)."""
@@ -136,7 +137,7 @@ class JaxAdapter:
         return eqx.filter_jit(f)
 
 
-#: eqx.filter_jit of each function `JaxAdapter.run` and `value_and_grad` were given, by function.
+#: eqx.filter_jit of each function `JaxAdapter.value_and_grad` was given, by function.
 _COMPILED: dict[tuple[Callable[..., Any], bool], Callable[..., Any]] = {}
 
 
