@@ -27,9 +27,9 @@ object (`fitting.MotionIds(ids=...)`, ...). Every fit runs noise-free on every b
 fits (the case's gaussian noise, sigma 0.01) run through the default method only and on the first
 backend only (torch; `--noisy-backends torch,jax` for both). The choice is the cost: the default run is 178 fits, 22.8 min on the shared 2-core machine
 (2026-12-02). A torch fit took 0.2-37 s (layers and motion IDs of three objects the slow ones), a
-JAX fit the same where the model's compiled functions were already there (`recover` compiles each
-level's functions once per image size, model options, shutter and speed bucket, and reuses them),
-and 5-12 s where it compiled them. 64 px rather than 48:
+JAX fit about the same where its compiled loss was already there (`recover` compiles each level's
+loss once per image size, model options, shutter and speed bucket, and reuses it), and 5-12 s
+where it compiled (measured before the one-shot pieces went back to op by op). 64 px rather than 48:
 a fit's time hardly depends on the size here, and 48 px leaves no room for large fast objects.
 `--threads 1` (the default) runs each framework single-threaded: on a shared 2-core machine that is
 several times faster for 64 x 64 images (torch: a gather fit 2.2 s -> 0.23 s under load), and the
