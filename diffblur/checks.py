@@ -75,6 +75,12 @@ def require_same_batch_and_size(
     b, _, h, w = reference_shape
     for name, shape in others:
         if (shape[0], shape[2], shape[3]) != (b, h, w):
+            if (shape[0], shape[2], shape[3]) == tuple(reference_shape[:3]):
+                # The reference's dims 1 and 2 are the others' H and W: it was given channels last.
+                raise ValueError(
+                    f"{reference_name} looks channels-last (B, H, W, C), got shape {tuple(reference_shape)} with "
+                    f"{name} {tuple(shape)}; the ops take NCHW (B, C, H, W): transpose {reference_name} with (0, 3, 1, 2)"
+                )
             raise ValueError(
                 f"{name} must match {reference_name} in batch and size (B={b}, H={h}, W={w}), "
                 f"got shape {tuple(shape)}"
