@@ -191,3 +191,27 @@ def depth_band(soft_z_extent: object, relative_z_extent: object) -> tuple[bool, 
     if _is_real_number(relative_z_extent) or isinstance(relative_z_extent, bool):
         relative_z_extent = require_positive_number("relative_z_extent", relative_z_extent)
     return True, relative_z_extent
+
+
+def lists_options(op):
+    """`op` with one change: an unknown keyword argument raises a TypeError that names it and lists
+    the op's keyword-only options (Python's own message names only the unknown one). The backends
+    export their ops through this; the wrapped op keeps its name, docstring and signature."""
+    import functools
+    import inspect
+
+    parameters = inspect.signature(op).parameters
+    known = frozenset(parameters)
+    options = ", ".join(p.name for p in parameters.values() if p.kind is inspect.Parameter.KEYWORD_ONLY)
+
+    @functools.wraps(op)
+    def checked(*args, **kwargs):
+        for name in kwargs:
+            if name not in known:
+                raise TypeError(f"{op.__name__}() got an unknown option {name!r}; valid options: {options}")
+        return op(*args, **kwargs)
+
+    return checked
+
+
+__all__ += ["lists_options"]

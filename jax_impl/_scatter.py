@@ -365,7 +365,7 @@ def _warn_without_still(kind: str, degree: int, given: dict, height: int, width:
         return
     y, x = np.mgrid[0:height, 0:width].astype(np.float64)
     moved = tuple(np.asarray(v, dtype=np.float64) for v in _moved_by(kind, degree, given))
-    warn_without_still(moving_mask(kind, moved, x[None], y[None]), stacklevel=3)
+    warn_without_still(moving_mask(kind, moved, x[None], y[None]), stacklevel=4)  # + the public wrapper (checks.lists_options)
 
 
 def _terms(kind: str, degree: int, given: dict[str, Array]) -> tuple:

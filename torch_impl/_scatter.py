@@ -413,7 +413,7 @@ def _scatter(
     terms = _terms(kind, degree, given)
     moving = moving_mask(kind, _moved_by(kind, degree, given), x, y)
     if fill == "still" and background is None and not torch.compiler.is_compiling():
-        warn_without_still(moving.cpu().numpy(), stacklevel=3)
+        warn_without_still(moving.cpu().numpy(), stacklevel=4)  # + the public wrapper (checks.lists_options)
 
     if fused:
         from torch_impl._fused_scatter import fused_splat
