@@ -193,10 +193,13 @@ def depth_band(soft_z_extent: object, relative_z_extent: object) -> tuple[bool, 
     return True, relative_z_extent
 
 
-def lists_options(op):
+def lists_options(op, *, explain=None):
     """`op` with one change: an unknown keyword argument raises a TypeError that names it and lists
     the op's keyword-only options (Python's own message names only the unknown one). The backends
-    export their ops through this; the wrapped op keeps its name, docstring and signature."""
+    export their ops through this; the wrapped op keeps its name, docstring and signature.
+
+    explain: optional `explain(error, kwargs)` -> an exception to raise instead of a TypeError the op
+    raised (e.g. a framework's message that does not say which option avoids it), or None."""
     import functools
     import inspect
 
@@ -209,7 +212,15 @@ def lists_options(op):
         for name in kwargs:
             if name not in known:
                 raise TypeError(f"{op.__name__}() got an unknown option {name!r}; valid options: {options}")
-        return op(*args, **kwargs)
+        if explain is None:
+            return op(*args, **kwargs)
+        try:
+            return op(*args, **kwargs)
+        except TypeError as error:
+            better = explain(error, kwargs)
+            if better is None:
+                raise
+            raise better from error
 
     return checked
 

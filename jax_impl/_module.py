@@ -78,6 +78,8 @@ class MotionBlur(eqx.Module):
         "bezier" takes one path: a velocity V (the segment from X - V to X + V), or offset_prev and
         offset_next (and offset_mid_prev with degree=3), or arc_center and arc_angle, as
         `bezier_scatter` does; and optionally its two-layer `background`."""
+        import jax_impl as ops  # the public ops: JAX's forward-mode error through a fused kernel says what to do
+
         paths = {"offset_prev": offset_prev, "offset_next": offset_next, "offset_mid_prev": offset_mid_prev, "arc_center": arc_center, "arc_angle": arc_angle}
         if self.method != "bezier":
             for name, value in (*paths.items(), ("background", background)):
@@ -91,10 +93,10 @@ class MotionBlur(eqx.Module):
         if self.method == "bezier":
             exposure = jnp.asarray(self.exposure, dtype=color.dtype)
             given = bezier_paths({"velocity": velocity, **paths}, exposure, options.get("degree", 2))
-            return bezier_scatter(color, depth, **given, background=background, **options)
+            return ops.bezier_scatter(color, depth, **given, background=background, **options)
         scaled = velocity * jnp.asarray(self.exposure, dtype=velocity.dtype)
         if self.method == "reconstruct":
-            return reconstruct(color, scaled, depth, **options)
+            return ops.reconstruct(color, scaled, depth, **options)
         if self.method in ("warp_blend", "accumulate"):
-            return _OPS[self.method](color, scaled, **options)
-        return gather_blur(color, scaled, **options)
+            return getattr(ops, _OPS[self.method].__name__)(color, scaled, **options)
+        return ops.gather_blur(color, scaled, **options)
