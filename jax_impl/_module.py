@@ -20,7 +20,8 @@ _OPS = {"reconstruct": reconstruct, "gather": gather_blur, "bezier": bezier_scat
 
 
 class MotionBlur(eqx.Module):
-    """Motion blur as a layer, with a learnable exposure (a scale on the velocity).
+    """Motion blur as a layer, optionally with a learnable exposure (a scale on the velocity) and
+    shutter shape.
 
     Args:
         method: "reconstruct" (seed 000, needs velocity and depth), "gather" (seed 001) or "bezier"
@@ -30,7 +31,9 @@ class MotionBlur(eqx.Module):
         exposure: initial exposure, the factor applied to the velocity (1 = as given); with "bezier",
             to the offsets (the path scaled about each pixel) or to the arc's angle.
         learn_exposure: hold the exposure as an array field (trainable under eqx.filter); else a
-            static float.
+            static float, the default. Off by default: where a network predicts the velocity, a
+            learnable exposure is a second scale on it, which the optimiser can trade against the
+            network's output; turn it on to fit an exposure to a known motion.
         learn_shutter: hold the shutter window's shape parameters (e.g. Tukey's taper) as array
             fields too; the window comes from the `shutter` option.
         **options: the method's keyword options (samples, sampling, shutter, ...), checked by name.
@@ -48,7 +51,7 @@ class MotionBlur(eqx.Module):
     method: str = eqx.field(static=True)
     options: tuple = eqx.field(static=True)
 
-    def __init__(self, method: str = "reconstruct", *, exposure: float = 1.0, learn_exposure: bool = True, learn_shutter: bool = False, **options):
+    def __init__(self, method: str = "reconstruct", *, exposure: float = 1.0, learn_exposure: bool = False, learn_shutter: bool = False, **options):
         self.method = method
         op = _OPS.get(method, reconstruct)
         checked = check_method_options(method, op, options)
