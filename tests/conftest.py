@@ -13,11 +13,32 @@ FRAMEWORK_OF = {"torch": "torch", "kornia": "torch", "jax": "jax", "jaxlib": "ja
 
 
 def missing_framework(error: BaseException | None) -> str | None:
-    """The framework whose absence raised `error` (a ModuleNotFoundError), or None."""
-    if not isinstance(error, ModuleNotFoundError) or not error.name:
-        return None
-    framework = FRAMEWORK_OF.get(error.name.split(".")[0])
-    return framework if framework is not None and not INSTALLED[framework] else None
+    """The framework whose absence raised `error` (a ModuleNotFoundError, or an error raised while
+    handling one), or None."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        seen.add(id(error))
+        if isinstance(error, ModuleNotFoundError) and error.name:
+            framework = FRAMEWORK_OF.get(error.name.split(".")[0])
+            if framework is not None and not INSTALLED[framework]:
+                return framework
+        error = error.__cause__ or error.__context__
+    return None
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    """A test that fails only because it imports (itself, or through an op or `fitting`) a
+    framework that is not installed is reported as skipped, with the reason, as
+    pytest.importorskip would; with both frameworks installed nothing changes."""
+    report = yield
+    if report.failed and call.excinfo is not None:
+        framework = missing_framework(call.excinfo.value)
+        if framework is not None:
+            report.outcome = "skipped"
+            reason = f"needs {framework}, not installed; pip install 'diffblur[{framework}]'"
+            report.longrepr = (str(item.path), item.location[1] or 0, f"Skipped: {reason}")
+    return report
 
 
 class FrameworkModule(pytest.Module):

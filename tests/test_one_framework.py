@@ -16,7 +16,12 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 #: Tests written once for both backends (the `backend` fixture), a few cheap ones.
-BOTH = ["tests/equivalence/test_bad_input.py", "-k", "test_shutters or test_torch_primitives or test_jax_primitives or unknown or NHWC or tile"]
+BOTH = [
+    "tests/equivalence/test_bad_input.py",
+    "tests/equivalence/test_module.py",  # its JAX-only tests import JAX inside the test: skipped too
+    "-k",
+    "test_shutters or test_torch_primitives or test_jax_primitives or unknown or NHWC or tile or learns_a_shutter or learnable_only",
+]
 #: (framework kept, the other's module that must skip, tests to run)
 RUNS = {
     "torch": ("jax", "tests/jax/test_jax_primitives.py", ["tests/core/test_shutters.py", "tests/jax/test_jax_primitives.py", *BOTH]),
@@ -40,5 +45,7 @@ def test_suite_runs_with_one_framework(kept):
     assert re.search(rf"SKIPPED \[\d+\] tests/conftest.py:\d+: needs {blocked}, not installed", output), output[-3000:]
     assert re.search(rf"SKIPPED \[\d+\] tests/equivalence/test_bad_input.py:\d+: {blocked} is not installed", output), output[-3000:]
     assert other_module.split("/")[-1] not in re.sub(r"SKIPPED.*|unable to import.*", "", output)
+    kept_test, other_test = (f"test_{f}_layer_learns_a_shutter_shape" for f in (kept, blocked))
+    assert re.search(rf"{kept_test} PASSED", output) and re.search(rf"{other_test} SKIPPED", output), output[-3000:]
     # The kept framework's cases of the tests written for both ran.
     assert re.search(rf"test_bad_input.py::\S+\[{kept}-[^\]]*\] PASSED", output), output[-3000:]
