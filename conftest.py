@@ -17,10 +17,16 @@ try:
 except ImportError:  # a torch-only install runs the torch and core tests
     jax = None
 
-try:
-    import torch
-except ImportError:  # a jax-only install runs the jax and core tests
-    torch = None
+import importlib.util  # noqa: E402
+
+
+def _installed(name: str) -> bool:
+    """Whether `name` can be imported, without importing it (tests/without_framework.py's blocker
+    raises ModuleNotFoundError from the lookup itself)."""
+    try:
+        return importlib.util.find_spec(name) is not None
+    except ModuleNotFoundError:
+        return False
 
 
 if jax is not None:
@@ -38,7 +44,7 @@ def pytest_configure(config):
     import time
     from pathlib import Path
 
-    if torch is None or jax is None:
+    if jax is None or not _installed("torch"):
         # A one-framework install: modules that import the other framework (its backend package,
         # the cross-framework tests) have no doctests to run here; their tests skip with the reason
         # (tests/conftest.py).
