@@ -17,6 +17,18 @@ try:
 except ImportError:  # a torch-only install runs the torch and core tests
     jax = None
 
+import importlib.util  # noqa: E402
+
+
+def _installed(name: str) -> bool:
+    """Whether `name` can be imported, without importing it (tests/without_framework.py's blocker
+    raises ModuleNotFoundError from the lookup itself)."""
+    try:
+        return importlib.util.find_spec(name) is not None
+    except ModuleNotFoundError:
+        return False
+
+
 if jax is not None:
     jax.config.update("jax_enable_x64", True)
     jax.config.update("jax_numpy_dtype_promotion", "strict")
@@ -32,6 +44,11 @@ def pytest_configure(config):
     import time
     from pathlib import Path
 
+    if jax is None or not _installed("torch"):
+        # A one-framework install: modules that import the other framework (its backend package,
+        # the cross-framework tests) have no doctests to run here; their tests skip with the reason
+        # (tests/conftest.py).
+        config.option.doctest_ignore_import_errors = True
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
         return
     terminal = config.pluginmanager.get_plugin("terminalreporter")

@@ -28,7 +28,72 @@ PAINTED_DEPTH_NEAR, PAINTED_DEPTH_FAR = 1.0, 10.0
 PAINTED_STILL_LEVEL = 128
 BACKENDS = ("torch", "jax")
 
-__all__ = ["BACKENDS", "BlurInputs", "blur_image", "load_inputs", "read_picture", "write_picture"]
+#: The command's options that set an op's option, by method: (command option, the op's option name).
+#: A method missing from an option's row does not take it (the command says so before reading files).
+METHOD_OPTIONS: dict[str, dict[str, str]] = {
+    "samples": {"reconstruct": "samples", "gather": "samples", "bezier": "samples", "accumulate": "instants"},
+    "iterations": {"warp_blend": "iterations"},
+    "max_radius": {"reconstruct": "max_radius"},
+    "shutter": {"reconstruct": "shutter", "gather": "shutter", "bezier": "shutter", "accumulate": "shutter"},
+}
+
+#: The methods that read a depth buffer; the others would ignore one.
+DEPTH_METHODS = ("reconstruct", "bezier")
+
+__all__ = [
+    "BACKENDS",
+    "BlurInputs",
+    "DEPTH_METHODS",
+    "METHOD_OPTIONS",
+    "blur_image",
+    "check_output_path",
+    "default_method",
+    "load_inputs",
+    "method_options",
+    "read_picture",
+    "write_picture",
+]
+
+
+def default_method(depth_given: bool) -> str:
+    """The command's method when none is named: "reconstruct" with a depth buffer (it keeps a moving
+    object's smear off what is in front of it), "gather" without one. Without depth every pixel sits
+    at one depth and reconstruct's depth test separates nothing, while its jitter and its taps over
+    S / (S + 1) of the path still cost accuracy: against the exact box blur of a photograph by one
+    velocity the gather is the closest of the methods (scripts/measure_blur_methods_on_photo.py)."""
+    return "reconstruct" if depth_given else "gather"
+
+
+def method_options(method: str, **given) -> dict:
+    """The op options of `method` for the command's options `given` (None = not given), e.g. the
+    command's `samples` is accumulate's `instants`. A ValueError names an option the method does not
+    take and the methods that do."""
+    options = {}
+    for name, value in given.items():
+        if value is None:
+            continue
+        takers = METHOD_OPTIONS[name]
+        if method not in takers:
+            flag = "--" + name.replace("_", "-")
+            raise ValueError(f"{flag} does not apply to method {method!r}; it sets an option of {', '.join(takers)}")
+        options[takers[method]] = value
+    return options
+
+
+def check_output_path(path: str | os.PathLike) -> None:
+    """Fail before any work if the output picture cannot be written: a suffix PIL does not write,
+    or a folder that does not exist."""
+    from PIL import Image
+
+    Image.init()
+    suffix = os.path.splitext(os.fspath(path))[1].lower()
+    writable = sorted(ext for ext, fmt in Image.registered_extensions().items() if fmt in Image.SAVE)
+    if suffix not in writable:
+        common = ", ".join(e for e in (".png", ".jpg", ".tif", ".bmp", ".webp") if e in writable)
+        raise ValueError(f"cannot write {os.fspath(path)!r}: {suffix or 'no suffix'!r} is not an image format PIL writes; use e.g. {common}")
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise FileNotFoundError(f"no such folder for the output picture: {folder!r}")
 
 
 @dataclass(frozen=True)

@@ -75,6 +75,12 @@ def require_same_batch_and_size(
     b, _, h, w = reference_shape
     for name, shape in others:
         if (shape[0], shape[2], shape[3]) != (b, h, w):
+            if (shape[0], shape[2], shape[3]) == tuple(reference_shape[:3]):
+                # The reference's dims 1 and 2 are the others' H and W: it was given channels last.
+                raise ValueError(
+                    f"{reference_name} looks channels-last (B, H, W, C), got shape {tuple(reference_shape)} with "
+                    f"{name} {tuple(shape)}; the ops take NCHW (B, C, H, W): transpose {reference_name} with (0, 3, 1, 2)"
+                )
             raise ValueError(
                 f"{name} must match {reference_name} in batch and size (B={b}, H={h}, W={w}), "
                 f"got shape {tuple(shape)}"
@@ -185,3 +191,38 @@ def depth_band(soft_z_extent: object, relative_z_extent: object) -> tuple[bool, 
     if _is_real_number(relative_z_extent) or isinstance(relative_z_extent, bool):
         relative_z_extent = require_positive_number("relative_z_extent", relative_z_extent)
     return True, relative_z_extent
+
+
+def lists_options(op, *, explain=None):
+    """`op` with one change: an unknown keyword argument raises a TypeError that names it and lists
+    the op's keyword-only options (Python's own message names only the unknown one). The backends
+    export their ops through this; the wrapped op keeps its name, docstring and signature.
+
+    explain: optional `explain(error, kwargs)` -> an exception to raise instead of a TypeError the op
+    raised (e.g. a framework's message that does not say which option avoids it), or None."""
+    import functools
+    import inspect
+
+    parameters = inspect.signature(op).parameters
+    known = frozenset(parameters)
+    options = ", ".join(p.name for p in parameters.values() if p.kind is inspect.Parameter.KEYWORD_ONLY)
+
+    @functools.wraps(op)
+    def checked(*args, **kwargs):
+        for name in kwargs:
+            if name not in known:
+                raise TypeError(f"{op.__name__}() got an unknown option {name!r}; valid options: {options}")
+        if explain is None:
+            return op(*args, **kwargs)
+        try:
+            return op(*args, **kwargs)
+        except TypeError as error:
+            better = explain(error, kwargs)
+            if better is None:
+                raise
+            raise better from error
+
+    return checked
+
+
+__all__ += ["lists_options"]

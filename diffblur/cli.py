@@ -25,8 +25,16 @@ def _gallery(args: argparse.Namespace) -> int:
 
 
 def _blur(args: argparse.Namespace) -> int:
-    from diffblur.blur_image import blur_image, load_inputs, write_picture
+    from diffblur.blur_image import DEPTH_METHODS, blur_image, check_output_path, default_method, load_inputs, method_options, write_picture
 
+    # Everything the command line decides is checked before the photograph is read and blurred.
+    depth_given = args.depth_file is not None or args.depth_image is not None
+    method = args.method or default_method(depth_given)
+    if depth_given and method not in DEPTH_METHODS:
+        flag = "--depth-file" if args.depth_file is not None else "--depth-image"
+        raise ValueError(f"{flag}: method {method!r} does not read depth; use --method {' or '.join(DEPTH_METHODS)}, or drop the depth")
+    options = method_options(method, samples=args.samples, iterations=args.iterations, max_radius=args.max_radius, shutter=args.shutter)
+    check_output_path(args.out)
     inputs = load_inputs(
         args.image,
         velocity=args.velocity,
@@ -36,12 +44,11 @@ def _blur(args: argparse.Namespace) -> int:
         depth_file=args.depth_file,
         depth_image=args.depth_image,
     )
-    options = {name: value for name, value in (("samples", args.samples), ("shutter", args.shutter)) if value is not None}
-    blurred = blur_image(inputs, method=args.method, backend=args.backend, exposure=args.exposure, **options)
+    blurred = blur_image(inputs, method=method, backend=args.backend, exposure=args.exposure, **options)
     write_picture(args.out, blurred)
     height, width = inputs.color.shape[2:]
     speed = float(np.hypot(*inputs.velocity[0]).max())
-    print(f"blurred {args.image} ({width}x{height}, up to {speed:.1f} px) with {args.method} on {args.backend}: wrote {args.out}")
+    print(f"blurred {args.image} ({width}x{height}, up to {speed:.1f} px) with {method} on {args.backend}: wrote {args.out}")
     return 0
 
 
@@ -113,9 +120,11 @@ def _add_blur_parser(commands) -> None:
     depth = blur.add_mutually_exclusive_group()
     depth.add_argument("--depth-file", help=".npy positive depth, shape (1, H, W) or (H, W)")
     depth.add_argument("--depth-image", help="painted depth picture, any size (see above)")
-    blur.add_argument("--method", default="reconstruct", choices=tuple(METHOD_INPUTS), help="blur method (default: reconstruct)")
+    blur.add_argument("--method", choices=tuple(METHOD_INPUTS), help="blur method (default: reconstruct with a depth, gather without: the closest to an exact blur when nothing separates by depth)")
     blur.add_argument("--backend", default="torch", choices=BACKENDS, help="framework (default: torch)")
-    blur.add_argument("--samples", type=int, help="taps or points per pixel (default: the method's)")
+    blur.add_argument("--samples", type=int, help="taps or points per pixel; accumulate's instants (default: the method's)")
+    blur.add_argument("--iterations", type=int, help="warp_blend's iterations (default: the method's)")
+    blur.add_argument("--max-radius", type=float, help="reconstruct's largest blur radius, px (default: the method's)")
     blur.add_argument("--shutter", choices=tuple(SHUTTERS), help="shutter window (default: the method's)")
     blur.add_argument("--exposure", type=float, default=1.0, help="scale on the velocity (default: 1)")
     blur.set_defaults(run=_blur)

@@ -69,6 +69,7 @@ def fit_files(
     depth: str | None = None,
     ids: str | None = None,
     velocity: tuple[float, float] | None = None,
+    boundary: float | None = None,
     out: str = DEFAULTS["out"],
     progress: bool = True,
     **options: Any,
@@ -95,6 +96,10 @@ def fit_files(
         if name not in ("motion_ids", "layers"):
             raise ValueError(f"--ids is the ID map of models motion_ids and layers, not of {name!r}")
         model_options["ids"] = np.load(ids).astype(np.int64).reshape(1, 1, *sharp_image.shape[2:])
+    if boundary is not None:
+        if name not in ("motion_ids", "layers"):
+            raise ValueError(f"--boundary is an option of models motion_ids and layers, not of {name!r}")
+        model_options["boundary"] = boundary
     kwargs["model"] = _models.MODEL_TYPES[name](**model_options)
     bar = None
     if progress:
@@ -138,6 +143,7 @@ def add_fit_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--depth", help="depth .npy (H, W), positive")
     parser.add_argument("--ids", help="motion ID map .npy (H, W) of integers (model motion_ids)")
     parser.add_argument("--velocity", type=float, nargs=2, metavar=("VX", "VY"), help="known half-spread velocity (models exposure, shutter)")
+    parser.add_argument("--boundary", type=float, help="leave out pixels within this many px of a change of ID or layer (models motion_ids, layers; default 0)")
     parser.add_argument("--model", default=DEFAULTS["model"], choices=MODELS, help=f"default: {DEFAULTS['model']}")
     parser.add_argument("--backend", default=DEFAULTS["backend"], choices=("torch", "jax"), help=f"default: {DEFAULTS['backend']}")
     parser.add_argument("--solver", help="lbfgs (default, both backends), torch adam; jax lm, dogleg, bfgs, adam")
@@ -153,7 +159,7 @@ def add_fit_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     options = {k: getattr(args, k) for k in ("model", "backend", "solver", "method", "iterations", "levels", "samples") if getattr(args, k) is not None}
-    summary = fit_files(args.sharp, args.target, depth=args.depth, ids=args.ids, velocity=args.velocity, out=args.out, progress=not args.no_progress, **options)
+    summary = fit_files(args.sharp, args.target, depth=args.depth, ids=args.ids, velocity=args.velocity, boundary=args.boundary, out=args.out, progress=not args.no_progress, **options)
     print(json.dumps(summary["params"]))
     print(f"loss {summary['loss']:.4e} after {summary['steps']} steps ({summary['seconds']:.1f} s), converged: {summary['converged']}, explains {summary['explained']:.1%} of the blur; wrote {os.path.join(args.out, 'params.json')} and fit.png")
     return 0

@@ -20,7 +20,8 @@ _OPS = {"reconstruct": reconstruct, "gather": gather_blur, "bezier": bezier_scat
 
 
 class MotionBlur(eqx.Module):
-    """Motion blur as a layer, with a learnable exposure (a scale on the velocity).
+    """Motion blur as a layer, optionally with a learnable exposure (a scale on the velocity) and
+    shutter shape.
 
     Args:
         method: "reconstruct" (seed 000, needs velocity and depth), "gather" (seed 001) or "bezier"
@@ -30,7 +31,9 @@ class MotionBlur(eqx.Module):
         exposure: initial exposure, the factor applied to the velocity (1 = as given); with "bezier",
             to the offsets (the path scaled about each pixel) or to the arc's angle.
         learn_exposure: hold the exposure as an array field (trainable under eqx.filter); else a
-            static float.
+            static float, the default. Off by default: where a network predicts the velocity, a
+            learnable exposure is a second scale on it, which the optimiser can trade against the
+            network's output; turn it on to fit an exposure to a known motion.
         learn_shutter: hold the shutter window's shape parameters (e.g. Tukey's taper) as array
             fields too; the window comes from the `shutter` option.
         **options: the method's keyword options (samples, sampling, shutter, ...), checked by name.
@@ -48,7 +51,7 @@ class MotionBlur(eqx.Module):
     method: str = eqx.field(static=True)
     options: tuple = eqx.field(static=True)
 
-    def __init__(self, method: str = "reconstruct", *, exposure: float = 1.0, learn_exposure: bool = True, learn_shutter: bool = False, **options):
+    def __init__(self, method: str = "reconstruct", *, exposure: float = 1.0, learn_exposure: bool = False, learn_shutter: bool = False, **options):
         self.method = method
         op = _OPS.get(method, reconstruct)
         checked = check_method_options(method, op, options)
@@ -78,6 +81,8 @@ class MotionBlur(eqx.Module):
         "bezier" takes one path: a velocity V (the segment from X - V to X + V), or offset_prev and
         offset_next (and offset_mid_prev with degree=3), or arc_center and arc_angle, as
         `bezier_scatter` does; and optionally its two-layer `background`."""
+        import jax_impl as ops  # the public ops: JAX's forward-mode error through a fused kernel says what to do
+
         paths = {"offset_prev": offset_prev, "offset_next": offset_next, "offset_mid_prev": offset_mid_prev, "arc_center": arc_center, "arc_angle": arc_angle}
         if self.method != "bezier":
             for name, value in (*paths.items(), ("background", background)):
@@ -91,10 +96,10 @@ class MotionBlur(eqx.Module):
         if self.method == "bezier":
             exposure = jnp.asarray(self.exposure, dtype=color.dtype)
             given = bezier_paths({"velocity": velocity, **paths}, exposure, options.get("degree", 2))
-            return bezier_scatter(color, depth, **given, background=background, **options)
+            return ops.bezier_scatter(color, depth, **given, background=background, **options)
         scaled = velocity * jnp.asarray(self.exposure, dtype=velocity.dtype)
         if self.method == "reconstruct":
-            return reconstruct(color, scaled, depth, **options)
+            return ops.reconstruct(color, scaled, depth, **options)
         if self.method in ("warp_blend", "accumulate"):
-            return _OPS[self.method](color, scaled, **options)
-        return gather_blur(color, scaled, **options)
+            return getattr(ops, _OPS[self.method].__name__)(color, scaled, **options)
+        return ops.gather_blur(color, scaled, **options)

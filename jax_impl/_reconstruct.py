@@ -120,7 +120,7 @@ def reconstruct(
             Needs "bilinear"; not combined with adaptive yet.
         fused: run the filter and its backward in one parallel CPU loop (`diffblur._fused`, numba,
             through `jax.pure_callback`, also under `jax.jit`) instead of jax.numpy ops: same
-            result and gradients (tested), several times faster on the CPU. None (default): fused
+            result and gradients (tested), faster on the CPU (timings: docs/fused.md). None (default): fused
             where it applies (CPU backend, float32/float64, bilinear, box shutter, no pyramid;
             adaptive sampling included), jax.numpy ops elsewhere. True: fused or a ValueError
             saying why not. False: always the jax.numpy ops. The fused path has reverse-mode

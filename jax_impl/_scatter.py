@@ -209,10 +209,8 @@ def bezier_scatter(
 
     - "coverage" (default): every moving point spreads total weight 1 over its exposure, so alpha is
       the fraction of the exposure something covers the pixel; out = A + (1 - alpha) fill where
-      alpha <= 1, A / alpha where alpha > 1. On the translate, propeller and gears presets
-      (128 x 128, box shutter, degree 2) it is 0.3 to 1.6 dB closer to the ground truth than
-      "paper" (PSNR) with fill="color", 3.3 to 7.3 dB with fill="still", and 14 to 21 dB closer
-      with `background`.
+      alpha <= 1, A / alpha where alpha > 1. Closer to the ground truth than "paper" on the
+      presets measured, with every fill (docs/methods.md).
     - "paper": seed 003 eq. 4, out = (A + w_b fill) / (alpha + w_b), with the points weighted per
       pixel of path length (2 m_k |p'(t_k)|, 1 per pixel for the box shutter), as rasterised lines
       deposit them, and w_b = `background_weight`.
@@ -243,11 +241,10 @@ def bezier_scatter(
             do not move (push-pull: the still pixels' colours averaged over 2 x 2 blocks down to one
             pixel, then filled back in from coarse to fine where a block has no still pixel; the
             pixel's own colour where the image has none, with a UserWarning in eager mode, once per
-            process), or "color", its own colour. With a box
-            shutter, degree 2, on the propeller (48 x 48 at 0.3 to 1.4 rad, and 128 x 128),
-            translate, gears and crossing presets "still" is 3.4 to 7.8 dB (PSNR) closer to the
-            ground truth than "color" and 3.8 to 7.5 dB closer than `gather_blur`. Still pixels in
-            front of moving ones count as background too.
+            process), or "color", its own colour. "still" is the default because a moving object
+            uncovers what is behind it, which the still pixels show better than the object's own
+            colour does (measured on the presets: docs/methods.md). Still pixels in front of
+            moving ones count as background too.
         background: (B, C, H, W) the static scene behind the moving objects (seed 003 sec. 5.1's
             two-layer extension): moving pixels show it, not their own colour, for the part of the
             exposure nothing covers them.
@@ -260,9 +257,8 @@ def bezier_scatter(
             that the output does not depend on the scene's depth units.
         fused: sum the splats and their backward in one parallel CPU loop each
             (`diffblur._fused_scatter`, numba, a host callback, also under jax.jit and jax.vmap),
-            with the same result and gradients (tested) and O(pixels) memory; at 1280x720 on 2
-            cores (jitted) 3x faster forward and forward+backward (scripts/measure_fused_scatter.py).
-            The normalisation and the fill stay jax.numpy ops. None (default): fused
+            with the same result and gradients (tested) and O(pixels) memory, faster on the CPU
+            (timings: docs/fused.md). The normalisation and the fill stay jax.numpy ops. None (default): fused
             where it applies (JAX's default backend is the CPU, float32/float64), jax.numpy ops
             elsewhere. True: fused or a ValueError saying why not. False: always the jax.numpy ops.
             The fused path has reverse-mode gradients only (a custom_vjp): forward mode (jax.jvp,
@@ -365,7 +361,7 @@ def _warn_without_still(kind: str, degree: int, given: dict, height: int, width:
         return
     y, x = np.mgrid[0:height, 0:width].astype(np.float64)
     moved = tuple(np.asarray(v, dtype=np.float64) for v in _moved_by(kind, degree, given))
-    warn_without_still(moving_mask(kind, moved, x[None], y[None]), stacklevel=3)
+    warn_without_still(moving_mask(kind, moved, x[None], y[None]), stacklevel=4)  # + the public wrapper (checks.lists_options)
 
 
 def _terms(kind: str, degree: int, given: dict[str, Array]) -> tuple:

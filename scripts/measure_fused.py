@@ -104,7 +104,7 @@ def adaptive(repeats: int) -> None:
 
     import jax_impl
     import torch_impl
-    from measure_issue7 import still_scene
+    from measure_warps_adaptive_pyramid import still_scene
 
     scene = still_scene(512)
     print("512x512, 90 % still, float32, S=15, forward (ms); JAX jitted")

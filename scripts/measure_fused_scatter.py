@@ -1,4 +1,4 @@
-"""Measure bezier_scatter's fused CPU splats (diffblur._fused_scatter) against the tensor ops (issue 8).
+"""Measure bezier_scatter's fused CPU splats (diffblur._fused_scatter) against the tensor ops.
 
 1280x720, float32, a uniform pan: the photograph and depth of `diffblur.bench.uniform_scene` with
 offsets (-V, +V), V = (8, 0) px, degree 2, a Gaussian shutter (named: the default is the box),

@@ -65,7 +65,7 @@ def test_short_fit_recovers_the_exposure_on_a_preset(scenes):
     `translate` comes out near 1, from a start at 0.4."""
     scene = scenes["translate"]
     color, velocity, depth, target = (torch.from_numpy(a) for a in (scene.color, scene.velocity, scene.depth, scene.target))
-    layer = torch_impl.MotionBlur("reconstruct", samples=9, exposure=0.4).double()
+    layer = torch_impl.MotionBlur("reconstruct", samples=9, exposure=0.4, learn_exposure=True).double()
     optimizer = torch.optim.Adam(layer.parameters(), lr=0.05)
     for _ in range(60):
         optimizer.zero_grad()

@@ -107,3 +107,82 @@ def test_missing_or_unreadable_photograph(tmp_path, capsys):
     text.write_text("not an image")
     assert main(["blur", str(text), "-o", str(tmp_path / "o.png"), "--velocity", "1", "0"]) == 2
     assert "is not an image file" in capsys.readouterr().err
+
+
+def test_samples_sets_accumulates_instants_and_max_radius_reaches_reconstruct(tmp_path, photo):
+    from diffblur.blur_image import blur_image, write_picture
+
+    out = tmp_path / "acc.png"
+    assert main(["blur", str(photo), "-o", str(out), "--velocity", "5", "0", "--method", "accumulate", "--samples", "5"]) == 0
+    inputs = load_inputs(str(photo), velocity=(5.0, 0.0))
+    expected = np.asarray(Image.open(out), dtype=np.int16)
+    write_picture(tmp_path / "direct.png", blur_image(inputs, method="accumulate", instants=5))
+    assert np.array_equal(np.asarray(Image.open(tmp_path / "direct.png"), dtype=np.int16), expected)
+    # max_radius sizes reconstruct's tiles, which matters where the velocity varies.
+    field = tmp_path / "velocity.npy"
+    np.save(field, np.random.default_rng(2).normal(0, 4, size=(2, 24, 32)))
+    small, large = tmp_path / "r2.png", tmp_path / "r20.png"
+    for path, radius in ((small, "2"), (large, "20")):
+        assert main(["blur", str(photo), "-o", str(path), "--velocity-file", str(field), "--method", "reconstruct", "--max-radius", radius]) == 0
+    assert not np.array_equal(np.asarray(Image.open(small)), np.asarray(Image.open(large)))
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--method", "warp_blend", "--samples", "5"], r"--samples does not apply to method 'warp_blend'; it sets an option of reconstruct, gather"),
+        (["--method", "gather", "--max-radius", "5"], r"--max-radius does not apply to method 'gather'"),
+        (["--method", "gather", "--iterations", "2"], r"--iterations does not apply to method 'gather'; it sets an option of warp_blend"),
+        (["--method", "gather", "--depth-image", "{photo}"], r"--depth-image: method 'gather' does not read depth; use --method reconstruct or bezier"),
+        (["-o", "{tmp}/x.jpgx"], r"cannot write '.*x.jpgx': '.jpgx' is not an image format PIL writes; use e.g. .png"),
+        (["-o", "{tmp}/no/such/folder/x.png"], r"no such folder for the output picture"),
+    ],
+)
+def test_command_line_mistakes_are_caught_before_the_blur_runs(tmp_path, photo, capsys, monkeypatch, extra, message):
+    import diffblur.blur_image
+
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("the blur ran before the command line was checked")
+
+    monkeypatch.setattr(diffblur.blur_image, "blur_image", must_not_run)
+    monkeypatch.setattr(diffblur.blur_image, "load_inputs", must_not_run)
+    args = ["blur", str(photo), "-o", str(tmp_path / "out.png"), "--velocity", "2", "0"] + [a.format(tmp=tmp_path, photo=photo) for a in extra]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("diffblur blur: error:") and re.search(message, err), err
+
+
+def test_default_method_is_gather_without_depth_and_reconstruct_with_it(tmp_path, photo, capsys):
+    """Without depth nothing separates by depth and the gather is the closest to the exact blur
+    (scripts/measure_blur_methods_on_photo.py); with depth, reconstruct keeps smears behind what is in front."""
+    from diffblur.blur_image import default_method
+
+    assert default_method(False) == "gather" and default_method(True) == "reconstruct"
+    assert main(["blur", str(photo), "-o", str(tmp_path / "a.png"), "--velocity", "2", "0"]) == 0
+    assert "with gather on torch" in capsys.readouterr().out
+    np.save(tmp_path / "depth.npy", np.ones((24, 32)))
+    assert main(["blur", str(photo), "-o", str(tmp_path / "b.png"), "--velocity", "2", "0", "--depth-file", str(tmp_path / "depth.npy")]) == 0
+    assert "with reconstruct on torch" in capsys.readouterr().out
+
+
+def test_fit_boundary_reaches_the_model_and_is_refused_where_it_means_nothing(tmp_path, capsys, monkeypatch):
+    import fitting._recover
+
+    np.save(tmp_path / "sharp.npy", np.zeros((1, 1, 8, 8)))
+    np.save(tmp_path / "ids.npy", np.zeros((8, 8), np.int64))
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake_recover(sharp, target, **kwargs):
+        seen.update(kwargs)
+        raise Stop
+
+    monkeypatch.setattr(fitting._recover, "recover", fake_recover)
+    files = [str(tmp_path / "sharp.npy"), str(tmp_path / "sharp.npy")]
+    with pytest.raises(Stop):
+        main(["fit", *files, "--model", "motion_ids", "--ids", str(tmp_path / "ids.npy"), "--boundary", "3", "--no-progress"])
+    assert type(seen["model"]).__name__ == "MotionIds" and seen["model"].boundary == 3.0
+    assert main(["fit", *files, "--model", "global", "--boundary", "3", "--no-progress"]) == 2
+    assert "--boundary is an option of models motion_ids and layers, not of 'global'" in capsys.readouterr().err

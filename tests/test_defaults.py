@@ -12,7 +12,7 @@ import pytest
 import jax_impl
 import torch_impl
 from diffblur import conventions, reference
-from tests.backends import BACKENDS
+from tests.backends import BACKENDS, backend_params
 
 OPS_WITH_SHUTTER = ["gather_blur", "reconstruct", "bezier_scatter", "accumulate_warps"]  # warp_blend has none
 
@@ -24,7 +24,7 @@ def test_every_op_defaults_to_the_one_shutter(module, name):
     assert parameters["shutter"].default == conventions.DEFAULT_SHUTTER
 
 
-@pytest.mark.parametrize("backend", BACKENDS, ids=lambda b: b.name)
+@pytest.mark.parametrize("backend", backend_params())
 def test_scatter_and_gather_blur_a_translation_alike_with_defaults(backend):
     """A uniform translation, every pixel moving 3 px each way: the degree-1 scatter and the gather,
     each with its defaults and 15 points/taps, are the same camera: the same image (to rounding), where
@@ -73,7 +73,7 @@ def _depth_ops(module, a, tensor_ops: bool):
 
 
 @pytest.mark.parametrize("scale", [0.01, 100.0])
-@pytest.mark.parametrize("backend", BACKENDS, ids=lambda b: b.name)
+@pytest.mark.parametrize("backend", backend_params())
 def test_rescaling_depth_changes_no_output_with_defaults(backend, scale):
     """Depth in any units: multiplying it by 0.01 or 100 leaves every op's output unchanged (float64:
     to 1e-9). With the old band of 0.1 depth units the scatter changed by up to 0.2 here."""
@@ -96,7 +96,7 @@ def test_rescaling_depth_changes_no_reference_output():
             np.testing.assert_allclose(op(depth * scale), base, atol=1e-9)
 
 
-@pytest.mark.parametrize("backend", BACKENDS, ids=lambda b: b.name)
+@pytest.mark.parametrize("backend", backend_params())
 def test_an_absolute_band_stays_available(backend):
     """soft_z_extent in depth units still applies (and then depth's units matter)."""
     color, depth, velocity = _tilted_scene()
@@ -109,7 +109,7 @@ def test_an_absolute_band_stays_available(backend):
     np.testing.assert_allclose(relative, via_log, atol=1e-9)
 
 
-@pytest.mark.parametrize("backend", BACKENDS, ids=lambda b: b.name)
+@pytest.mark.parametrize("backend", backend_params())
 def test_bad_bands_are_refused(backend):
     color, depth, velocity = (backend.array(x) for x in _tilted_scene())
     for op in (

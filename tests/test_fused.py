@@ -19,6 +19,9 @@ import jax.numpy as jnp  # noqa: E402
 import jax_impl  # noqa: E402
 from diffblur import _fused  # noqa: E402
 import torch_impl  # noqa: E402
+from tests.tolerances import tolerance  # noqa: E402
+
+FUSED_FLOAT64, FUSED_FLOAT32 = (tolerance(dtype, "fused", "reconstruct") for dtype in ("float64", "float32"))
 
 BATCH, CHANNELS, HEIGHT, WIDTH = 2, 3, 11, 14
 
@@ -83,13 +86,13 @@ def _assert_close(fused, pure, tolerance):
 @pytest.mark.parametrize("case", list(CASES))
 def test_torch_fused_matches_pure_float64(case):
     arrays = _scene()
-    _assert_close(_torch_run(arrays, CASES[case], True), _torch_run(arrays, CASES[case], False), 1e-11)
+    _assert_close(_torch_run(arrays, CASES[case], True), _torch_run(arrays, CASES[case], False), FUSED_FLOAT64)
 
 
 @pytest.mark.parametrize("case", list(CASES))
 def test_jax_fused_matches_pure_float64_under_jit(case):
     arrays = _scene()
-    _assert_close(_jax_run(arrays, CASES[case], True, jax.jit), _jax_run(arrays, CASES[case], False), 1e-11)
+    _assert_close(_jax_run(arrays, CASES[case], True, jax.jit), _jax_run(arrays, CASES[case], False), FUSED_FLOAT64)
 
 
 @pytest.mark.parametrize("case", ["default", "own directions", "adaptive, early out", "adaptive, classes past a middle"])
@@ -97,15 +100,15 @@ def test_rows_wider_than_one_block(case):
     """The kernels run each row in blocks of at most _fused._BLOCK pixels that end where the tiles'
     tap count changes: several blocks, a partial last one, adaptive classes side by side."""
     arrays = _scene(width=_fused._BLOCK + 23)
-    _assert_close(_torch_run(arrays, CASES[case], True), _torch_run(arrays, CASES[case], False), 1e-11)
+    _assert_close(_torch_run(arrays, CASES[case], True), _torch_run(arrays, CASES[case], False), FUSED_FLOAT64)
 
 
 def test_float32_both_frameworks_agree():
     arrays = _scene(np.float32, seed=1)
     options = CASES["default"]
     torch_fused = _torch_run(arrays, options, True)
-    _assert_close(torch_fused, _torch_run(arrays, options, False), 2e-5)
-    _assert_close(_jax_run(arrays, options, True), torch_fused, 2e-5)
+    _assert_close(torch_fused, _torch_run(arrays, options, False), FUSED_FLOAT32)
+    _assert_close(_jax_run(arrays, options, True), torch_fused, FUSED_FLOAT32)
 
 
 def test_default_takes_the_fused_path_and_it_is_the_pure_result():
@@ -123,7 +126,7 @@ def test_jitter_tensor_per_batch_item():
     jitter = np.random.default_rng(3).uniform(-0.5, 0.5, size=(BATCH, 1, HEIGHT, WIDTH))
     options = dict(max_radius=4.0, samples=7)
     torch_jitter = dict(options, jitter=torch.tensor(jitter))
-    _assert_close(_torch_run(arrays, torch_jitter, True), _torch_run(arrays, torch_jitter, False), 1e-11)
+    _assert_close(_torch_run(arrays, torch_jitter, True), _torch_run(arrays, torch_jitter, False), FUSED_FLOAT64)
 
 
 def test_jax_vmap_over_a_leading_axis():

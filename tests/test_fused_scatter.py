@@ -22,6 +22,9 @@ import jax_impl  # noqa: E402
 import torch_impl  # noqa: E402
 from diffblur import _fused_scatter  # noqa: E402
 from diffblur.shutters import LinearRamp  # noqa: E402
+from tests.tolerances import tolerance  # noqa: E402
+
+FUSED_FLOAT64, FUSED_FLOAT32 = (tolerance(dtype, "fused", "bezier_scatter") for dtype in ("float64", "float32"))
 
 BATCH, CHANNELS, HEIGHT, WIDTH = 2, 3, 12, 14
 
@@ -117,7 +120,7 @@ def _assert_close(fused, pure, tolerance):
 def test_torch_fused_matches_pure_float64(path, normalization, fill):
     arrays = _scene()
     options = dict(samples=7, normalization=normalization)
-    _assert_close(_torch_run(arrays, path, options, True, fill), _torch_run(arrays, path, options, False, fill), 1e-10)
+    _assert_close(_torch_run(arrays, path, options, True, fill), _torch_run(arrays, path, options, False, fill), FUSED_FLOAT64)
 
 
 @pytest.mark.parametrize("normalization", NORMALIZATIONS)
@@ -125,7 +128,7 @@ def test_torch_fused_matches_pure_float64(path, normalization, fill):
 def test_jax_fused_matches_pure_float64_under_jit(path, fill, normalization):
     arrays = _scene()
     options = dict(samples=7, normalization=normalization)
-    _assert_close(_jax_run(arrays, path, options, True, fill), _jax_run(arrays, path, options, False, fill), 1e-10)
+    _assert_close(_jax_run(arrays, path, options, True, fill), _jax_run(arrays, path, options, False, fill), FUSED_FLOAT64)
 
 
 def test_automatic_point_count_and_shutters():
@@ -134,9 +137,9 @@ def test_automatic_point_count_and_shutters():
     4 s each), and the shutters' masses are the code both frameworks share."""
     arrays = _scene(seed=1)
     for options in (dict(), dict(shutter="box", normalization="paper"), dict(shutter="tent", samples=4)):
-        _assert_close(_torch_run(arrays, "degree 2", options, True), _torch_run(arrays, "degree 2", options, False), 1e-10)
+        _assert_close(_torch_run(arrays, "degree 2", options, True), _torch_run(arrays, "degree 2", options, False), FUSED_FLOAT64)
     eager = lambda f: f  # noqa: E731
-    _assert_close(_jax_run(arrays, "degree 2", {}, True, transform=eager), _jax_run(arrays, "degree 2", {}, False, transform=eager), 1e-10)
+    _assert_close(_jax_run(arrays, "degree 2", {}, True, transform=eager), _jax_run(arrays, "degree 2", {}, False, transform=eager), FUSED_FLOAT64)
 
 
 @pytest.mark.parametrize("normalization", NORMALIZATIONS)
@@ -153,7 +156,7 @@ def test_torch_shutter_parameter_and_extent_tensor_gradients(normalization):
         inputs = {**values, **parameters}
         grads = torch.autograd.grad(out, list(inputs.values()), torch.tensor(arrays["cotangent"]))
         results.append((out.detach().numpy(), {name: g.numpy() for name, g in zip(inputs, grads)}))
-    _assert_close(*results, 1e-10)
+    _assert_close(*results, FUSED_FLOAT64)
 
 
 def test_jax_shutter_parameter_and_extent_gradients_under_jit():
@@ -182,8 +185,8 @@ def test_channel_counts_other_than_three(channels):
         arrays[name] = rng.random((BATCH, channels, HEIGHT, WIDTH))
     for path, fill in (("degree 2", "still"), ("arc", "background")):
         options = dict(samples=5, normalization="paper")
-        _assert_close(_torch_run(arrays, path, options, True, fill), _torch_run(arrays, path, options, False, fill), 1e-10)
-    _assert_close(_jax_run(arrays, "degree 1", dict(samples=5), True), _jax_run(arrays, "degree 1", dict(samples=5), False), 1e-10)
+        _assert_close(_torch_run(arrays, path, options, True, fill), _torch_run(arrays, path, options, False, fill), FUSED_FLOAT64)
+    _assert_close(_jax_run(arrays, "degree 1", dict(samples=5), True), _jax_run(arrays, "degree 1", dict(samples=5), False), FUSED_FLOAT64)
 
 
 @pytest.mark.parametrize("path", ["degree 2", "arc"])
@@ -191,9 +194,9 @@ def test_float32_both_frameworks_agree(path):
     arrays = _scene(np.float32, seed=3)
     options = dict(samples=7)
     torch_fused = _torch_run(arrays, path, options, True)
-    _assert_close(torch_fused, _torch_run(arrays, path, options, False), 1e-4)
-    _assert_close(_jax_run(arrays, path, options, True), _jax_run(arrays, path, options, False), 1e-4)
-    _assert_close(_jax_run(arrays, path, options, True), torch_fused, 1e-4)
+    _assert_close(torch_fused, _torch_run(arrays, path, options, False), FUSED_FLOAT32)
+    _assert_close(_jax_run(arrays, path, options, True), _jax_run(arrays, path, options, False), FUSED_FLOAT32)
+    _assert_close(_jax_run(arrays, path, options, True), torch_fused, FUSED_FLOAT32)
     assert torch_fused[0].dtype == np.float32
 
 
@@ -223,7 +226,7 @@ def test_default_takes_the_fused_path_in_both_frameworks(kernel_calls):
     pure = _torch_run(arrays, "degree 2", dict(samples=5), False)
     _jax_run(arrays, "degree 2", dict(samples=5), False)
     assert kernel_calls == counted
-    _assert_close(default, pure, 1e-4)
+    _assert_close(default, pure, FUSED_FLOAT32)
 
 
 def test_jax_vmap_over_a_leading_axis():
@@ -305,7 +308,7 @@ def test_jax_forward_mode_needs_fused_false():
         return _call(jax_impl, dict(values, offset_next=offset), "degree 2", dict(samples=5), fused)
 
     tangent = jnp.ones_like(values["offset_next"])
-    with pytest.raises(TypeError, match="custom_vjp"):
+    with pytest.raises(TypeError, match=r"custom_vjp.*pass bezier_scatter\(\.\.\., fused=False\)"):
         jax.jvp(lambda o: along(o, True), (values["offset_next"],), (tangent,))
     _, pure = jax.jvp(lambda o: along(o, False), (values["offset_next"],), (tangent,))
     assert np.isfinite(np.asarray(pure)).all()

@@ -15,8 +15,12 @@ ROOT = Path(__file__).resolve().parent.parent
 README = (ROOT / "README.md").read_text()
 
 
-def code_blocks(language: str) -> list[str]:
-    return re.findall(rf"```{language}\n(.*?)```", README, flags=re.S)
+def code_blocks(language: str, text: str = README) -> list[str]:
+    return re.findall(rf"```{language}\n(.*?)```", text, flags=re.S)
+
+
+#: The guide's pages: their Python blocks run too.
+GUIDE = {path.relative_to(ROOT).as_posix(): path.read_text() for path in sorted((ROOT / "docs").glob("*.md"))}
 
 
 def test_ci_runs_exactly_the_readme_test_command():
@@ -37,9 +41,31 @@ def test_readme_python_blocks_run(index):
     exec(compile(code_blocks("python")[index], f"README.md python block {index}", "exec"), {})
 
 
-def test_pictures_the_readme_shows_exist():
-    for path in re.findall(r"!\[[^\]]*\]\(([^)]+)\)", README):
-        assert (ROOT / path).is_file(), path
+@pytest.mark.parametrize("page, index", [(page, i) for page, text in GUIDE.items() for i in range(len(code_blocks("python", text)))])
+def test_guide_python_blocks_run(page, index):
+    exec(compile(code_blocks("python", GUIDE[page])[index], f"{page} python block {index}", "exec"), {})
+
+
+def test_readme_is_short():
+    assert len(README.splitlines()) <= 150
+
+
+@pytest.mark.parametrize("page", ["README.md", "CHANGELOG.md", *GUIDE])
+def test_pictures_and_links_point_at_files_that_exist(page):
+    text = (ROOT / page).read_text()
+    for target in re.findall(r"\]\(([^)#]+)\)", text):
+        if not re.match(r"[a-z]+://", target):
+            assert (ROOT / page).parent.joinpath(target).exists(), f"{page}: {target}"
+
+
+def test_the_layout_table_names_files_that_exist():
+    """The README's "Where things are": every path it names exists, so a newcomer finds each op's
+    definition, backend code, reference and kernel in one step."""
+    section = README.split("## Where things are", 1)[1].split("\n## ", 1)[0]
+    paths = set(re.findall(r"`((?:diffblur|torch_impl|jax_impl|fitting|tests)/[\w./*]*)`", section))
+    assert len(paths) > 20
+    for path in paths:
+        assert list(ROOT.glob(path)), path
 
 
 def test_demo_writes_a_picture_and_a_table(tmp_path, capsys):

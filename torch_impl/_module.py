@@ -20,7 +20,8 @@ _OPS = {"reconstruct": reconstruct, "gather": gather_blur, "bezier": bezier_scat
 
 
 class MotionBlur(nn.Module):
-    """Motion blur as a layer, with a learnable exposure (a scale on the velocity).
+    """Motion blur as a layer, optionally with a learnable exposure (a scale on the velocity) and
+    shutter shape.
 
     Args:
         method: "reconstruct" (seed 000, needs velocity and depth), "gather" (seed 001) or "bezier"
@@ -29,7 +30,10 @@ class MotionBlur(nn.Module):
             accumulation baseline) read velocity only.
         exposure: initial exposure, the factor applied to the velocity (1 = as given); with "bezier",
             to the offsets (the path scaled about each pixel) or to the arc's angle.
-        learn_exposure: make the exposure an `nn.Parameter` (else a buffer).
+        learn_exposure: make the exposure an `nn.Parameter` (else a buffer, the default). Off by
+            default: where a network predicts the velocity, a learnable exposure is a second scale on
+            it, which the optimiser can trade against the network's output; turn it on to fit an
+            exposure to a known motion.
         learn_shutter: make the shutter window's shape parameters (e.g. Tukey's taper)
             parameters too; the window comes from the `shutter` option.
         **options: the method's keyword options (samples, sampling, shutter, ...), checked by name.
@@ -41,7 +45,7 @@ class MotionBlur(nn.Module):
     torch.Size([2, 3, 16, 16])
     """
 
-    def __init__(self, method: str = "reconstruct", *, exposure: float = 1.0, learn_exposure: bool = True, learn_shutter: bool = False, **options):
+    def __init__(self, method: str = "reconstruct", *, exposure: float = 1.0, learn_exposure: bool = False, learn_shutter: bool = False, **options):
         super().__init__()
         self.method = method
         op = _OPS.get(method, reconstruct)

@@ -124,7 +124,8 @@ def reconstruct(
             001's texture-space blur), trilinearly; depth and velocity stay full resolution.
             Needs "bilinear"; not combined with adaptive yet.
         fused: run the filter and its backward in one parallel CPU loop (`diffblur._fused`, numba)
-            instead of tensor ops: same result and gradients (tested), 10-30x faster on the CPU.
+            instead of tensor ops: same result and gradients (tested), faster on the CPU (timings:
+            docs/fused.md).
             None (default): fused where it applies (CPU, float32/float64, bilinear, box shutter,
             no pyramid, eager mode, jitter without grad; adaptive sampling included), tensor ops
             elsewhere. True: fused or a ValueError saying why not. False: always the tensor ops.

@@ -211,10 +211,8 @@ def bezier_scatter(
 
     - "coverage" (default): every moving point spreads total weight 1 over its exposure, so alpha is
       the fraction of the exposure something covers the pixel; out = A + (1 - alpha) fill where
-      alpha <= 1, A / alpha where alpha > 1. On the translate, propeller and gears presets
-      (128 x 128, box shutter, degree 2) it is 0.3 to 1.6 dB closer to the ground truth than
-      "paper" (PSNR) with fill="color", 3.3 to 7.3 dB with fill="still", and 14 to 21 dB closer
-      with `background`.
+      alpha <= 1, A / alpha where alpha > 1. Closer to the ground truth than "paper" on the
+      presets measured, with every fill (docs/methods.md).
     - "paper": seed 003 eq. 4, out = (A + w_b fill) / (alpha + w_b), with the points weighted per
       pixel of path length (2 m_k |p'(t_k)|, 1 per pixel for the box shutter), as rasterised lines
       deposit them, and w_b = `background_weight`.
@@ -245,11 +243,10 @@ def bezier_scatter(
             do not move (push-pull: the still pixels' colours averaged over 2 x 2 blocks down to one
             pixel, then filled back in from coarse to fine where a block has no still pixel; the
             pixel's own colour where the image has none, with a UserWarning in eager mode, once per
-            process), or "color", its own colour. With a box
-            shutter, degree 2, on the propeller (48 x 48 at 0.3 to 1.4 rad, and 128 x 128),
-            translate, gears and crossing presets "still" is 3.4 to 7.8 dB (PSNR) closer to the
-            ground truth than "color" and 3.8 to 7.5 dB closer than `gather_blur`. Still pixels in
-            front of moving ones count as background too.
+            process), or "color", its own colour. "still" is the default because a moving object
+            uncovers what is behind it, which the still pixels show better than the object's own
+            colour does (measured on the presets: docs/methods.md). Still pixels in front of
+            moving ones count as background too.
         background: (B, C, H, W) the static scene behind the moving objects (seed 003 sec. 5.1's
             two-layer extension): moving pixels show it, not their own colour, for the part of the
             exposure nothing covers them.
@@ -262,8 +259,7 @@ def bezier_scatter(
             that the output does not depend on the scene's depth units.
         fused: sum the splats and their backward in one parallel CPU loop each
             (`diffblur._fused_scatter`, numba), with the same result and gradients (tested) and
-            O(pixels) memory; at 1280x720 on 2 cores 8x faster forward and 9x forward+backward
-            (scripts/measure_fused_scatter.py). The normalisation and the fill stay tensor ops.
+            O(pixels) memory, faster on the CPU (timings: docs/fused.md). The normalisation and the fill stay tensor ops.
             None (default): fused where it applies (CPU, float32/float64, not while
             torch.compile traces), tensor ops elsewhere. True: fused or a ValueError saying why not.
             False: always the tensor ops. The fused backward is not differentiable again (no double
@@ -413,7 +409,7 @@ def _scatter(
     terms = _terms(kind, degree, given)
     moving = moving_mask(kind, _moved_by(kind, degree, given), x, y)
     if fill == "still" and background is None and not torch.compiler.is_compiling():
-        warn_without_still(moving.cpu().numpy(), stacklevel=3)
+        warn_without_still(moving.cpu().numpy(), stacklevel=4)  # + the public wrapper (checks.lists_options)
 
     if fused:
         from torch_impl._fused_scatter import fused_splat

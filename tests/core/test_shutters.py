@@ -4,11 +4,20 @@ from __future__ import annotations
 
 import math
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
-import torch
+
+from tests.backends import INSTALLED
+
+if INSTALLED["torch"]:
+    import torch
+if INSTALLED["jax"]:
+    import jax
+    import jax.numpy as jnp
+
+#: The windows in the frameworks: the NumPy tests above them run in any install.
+needs_torch = pytest.mark.skipif(not INSTALLED["torch"], reason="torch is not installed (pip install 'diffblur[torch]')")
+needs_both = pytest.mark.skipif(not all(INSTALLED.values()), reason="compares torch and jax: needs both installed")
 
 from diffblur import shutters
 from diffblur.shutters import (
@@ -197,6 +206,7 @@ T_GRID = np.concatenate([np.linspace(-1.3, 1.3, 131), [-1.0, 0.0, 1.0]])
 
 
 @pytest.mark.parametrize("window", WINDOWS, ids=IDS)
+@needs_both
 def test_weight_in_torch_and_jax_matches_numpy(window):
     expected = window.weight(T_GRID)
     got_torch = window.weight(torch.tensor(T_GRID, dtype=torch.float64), torch)
@@ -221,6 +231,7 @@ FAMILIES = [
 
 
 @pytest.mark.parametrize("cls,field,value", FAMILIES, ids=[f[0].__name__ for f in FAMILIES])
+@needs_torch
 def test_torch_gradient_wrt_shape_parameter_matches_finite_difference(cls, field, value):
     # Off the kinks (|t| = 1 - ramp, 0), where one-sided derivatives differ; the second moment of the
     # window depends on its shape (the first moment on the slope of the asymmetric one).
@@ -246,6 +257,7 @@ def test_torch_gradient_wrt_shape_parameter_matches_finite_difference(cls, field
 
 
 @pytest.mark.parametrize("cls,field,value", FAMILIES, ids=[f[0].__name__ for f in FAMILIES])
+@needs_both
 def test_jax_gradient_wrt_shape_parameter_matches_torch(cls, field, value):
     t_np = np.linspace(-0.97, 0.97, 40)
 
@@ -260,6 +272,7 @@ def test_jax_gradient_wrt_shape_parameter_matches_torch(cls, field, value):
 
 
 @pytest.mark.parametrize("cls,field", [(Trapezoid, "ramp"), (Tukey, "taper")])
+@needs_both
 def test_gradient_is_finite_at_the_box_end_of_the_family(cls, field):
     # At ramp/taper 0 the edge branch divides by zero; `where` must not turn that into a NaN gradient.
     t = torch.tensor(np.linspace(-1.2, 1.2, 49), dtype=torch.float64)
@@ -272,12 +285,14 @@ def test_gradient_is_finite_at_the_box_end_of_the_family(cls, field):
     assert np.isfinite(float(grad_jax))
 
 
+@needs_torch
 def test_erf_series_matches_math_erf():
     x = np.concatenate([np.linspace(0, 7, 71), [1e-8, 5.999, 6.0, 30.0]])
     got = shutters._erf_series(torch.tensor(x, dtype=torch.float64), torch).numpy()
     np.testing.assert_allclose(got, [math.erf(v) for v in x], rtol=2e-15, atol=1e-16)
 
 
+@needs_both
 def test_erf_uses_each_frameworks_own_and_agrees_with_math_erf():
     """Torch tensors and JAX arrays take the framework's erf (one op, with its derivative
     2/sqrt(pi) exp(-x^2)); the values match math.erf on both signs."""

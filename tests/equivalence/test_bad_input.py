@@ -81,6 +81,17 @@ BAD_CALLS = [
     ("exposure string", lambda o, b: o.velocity_from_motion(field((1, 2, 4, 4), backend=b), exposure="1"), TypeError, r"exposure must be a real number"),
     ("axis out of range", lambda o, b: o.safe_length(field((1, 2, 4, 4), backend=b), axis=4), ValueError, r"axis must be in \[-4, 4\)"),
     ("noise height 0", lambda o, b: o.interleaved_gradient_noise(0, 4), ValueError, r"height must be an integer >= 1, got 0"),
+    # An unknown keyword names the valid options, as MotionBlur's do.
+    ("gather unknown option", lambda o, b: o.gather_blur(field((1, 3, 4, 4), backend=b), field((1, 2, 4, 4), backend=b), sample=3), TypeError, r"gather_blur\(\) got an unknown option 'sample'; valid options: samples, shutter, sampling, adaptive, pyramid, fused"),
+    ("reconstruct unknown option", lambda o, b: reconstruct_call(b, radius=3)(o), TypeError, r"reconstruct\(\) got an unknown option 'radius'; valid options: max_radius, samples, .*fused"),
+    ("bezier unknown option", lambda o, b: o.bezier_scatter(field((1, 3, 4, 4), backend=b), field((1, 1, 4, 4), backend=b), field((1, 2, 4, 4), backend=b), field((1, 2, 4, 4), backend=b), points=3), TypeError, r"bezier_scatter\(\) got an unknown option 'points'; valid options: degree, .*samples"),
+    ("accumulate unknown option", lambda o, b: o.accumulate_warps(field((1, 3, 4, 4), backend=b), field((1, 2, 4, 4), backend=b), samples=3), TypeError, r"accumulate_warps\(\) got an unknown option 'samples'; valid options: instants, shutter"),
+    ("warp_blend unknown option", lambda o, b: o.warp_blend(field((1, 3, 4, 4), backend=b), field((1, 2, 4, 4), backend=b), samples=3), TypeError, r"warp_blend\(\) got an unknown option 'samples'; valid options: iterations"),
+    ("motion unknown option", lambda o, b: o.velocity_from_motion(field((1, 2, 4, 4), backend=b), radius=1.0), TypeError, r"velocity_from_motion\(\) got an unknown option 'radius'; valid options: exposure, max_radius, min_radius"),
+    # A channels-last colour is named as such, not reported as a bad velocity.
+    ("gather NHWC color", lambda o, b: o.gather_blur(field((1, 4, 5, 3), backend=b), field((1, 2, 4, 5), backend=b)), ValueError, r"color looks channels-last \(B, H, W, C\), got shape \(1, 4, 5, 3\).*NCHW \(B, C, H, W\)"),
+    ("reconstruct NHWC color", lambda o, b: reconstruct_call(b, color=(1, 6, 7, 3))(o), ValueError, r"color looks channels-last"),
+    ("layer NHWC color", lambda o, b: o.MotionBlur("gather")(field((1, 4, 5, 3), backend=b), field((1, 2, 4, 5), backend=b)), ValueError, r"color looks channels-last"),
 ]
 
 
@@ -102,7 +113,7 @@ JIT_BAD_CALLS = [
 
 @pytest.mark.parametrize("call,pattern", [c[1:] for c in JIT_BAD_CALLS], ids=[c[0] for c in JIT_BAD_CALLS])
 def test_data_checks_raise_under_jax_jit(call, pattern):
-    import jax
+    jax = pytest.importorskip("jax")
     import jax.numpy as jnp
 
     import jax_impl

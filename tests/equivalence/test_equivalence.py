@@ -17,13 +17,11 @@ from jax.test_util import check_grads
 
 import torch_impl
 from tests.equivalence.cases import CASES, Case
+from tests.tolerances import tolerance
 
 CASES_BY_NAME = {case.name: case for case in CASES}
 
 DTYPES = ("float32", "float64")
-#: (atol, rtol) for gradients compared across frameworks, per dtype.
-GRADIENT_TOLERANCE = {"float32": (1e-4, 1e-4), "float64": (1e-10, 1e-9)}
-OUTPUT_TOLERANCE_FLOAT64 = (1e-12, 1e-10)
 FD_STEP = 1e-6
 
 case_ids = [case.name for case in CASES]
@@ -33,7 +31,7 @@ smooth_ids = [case.name for case in SMOOTH_CASES]
 
 
 def output_tolerance(case: Case, dtype: str) -> tuple[float, float]:
-    return case.float32_tolerance if dtype == "float32" else OUTPUT_TOLERANCE_FLOAT64
+    return tolerance(dtype, "output")
 
 
 def torch_inputs(case: Case, inputs: dict, dtype: str) -> dict[str, torch.Tensor]:
@@ -110,7 +108,7 @@ def test_torch_matches_jax(case, dtype):
     assert_close(torch_out, jax_out, output_tolerance(case, dtype), f"{case.name} output")
     for name in case.differentiable:
         assert torch_grads[name].shape == jax_grads[name].shape == np.shape(inputs[name])
-        assert_close(torch_grads[name], jax_grads[name], GRADIENT_TOLERANCE[dtype], f"{case.name} d/d{name}")
+        assert_close(torch_grads[name], jax_grads[name], tolerance(dtype, "gradient"), f"{case.name} d/d{name}")
 
 
 # ----- gradients ---------------------------------------------------------------------------------
@@ -286,7 +284,7 @@ def test_jax_jit_matches_eager(case):
     # XLA fuses multiply-adds under jit, so float32 results move by a few ulps.
     assert_close(jit_out, eager_out, (1e-6, 1e-5), "jit output")
     for name in case.differentiable:
-        assert_close(jit_grads[name], eager_grads[name], GRADIENT_TOLERANCE["float32"], f"jit d/d{name}")
+        assert_close(jit_grads[name], eager_grads[name], tolerance("float32", "gradient"), f"jit d/d{name}")
 
 
 # ----- the jitter ---------------------------------------------------------------------------------

@@ -70,7 +70,7 @@ def test_torch_layer_trains_its_exposure_and_compiles():
 
     color, velocity, depth = (torch.tensor(a, dtype=torch.float32) for a in (COLOR, VELOCITY * 2, DEPTH))
     target = torch_impl.reconstruct(color, velocity * 0.6, depth, samples=7)
-    layer = torch_impl.MotionBlur("reconstruct", samples=7, exposure=1.0)
+    layer = torch_impl.MotionBlur("reconstruct", samples=7, exposure=1.0, learn_exposure=True)
     optimizer = torch.optim.Adam(layer.parameters(), lr=0.03)
     for _ in range(80):
         optimizer.zero_grad()
@@ -90,7 +90,7 @@ def test_torch_layer_learns_a_shutter_shape():
 
     color, velocity = torch.tensor(COLOR), torch.tensor(VELOCITY * 2)
     layer = torch_impl.MotionBlur("gather", samples=7, shutter=Tukey(0.3), learn_shutter=True)
-    assert sorted(name for name, _ in layer.named_parameters()) == ["exposure", "shutter_shape.taper"]
+    assert sorted(name for name, _ in layer.named_parameters()) == ["shutter_shape.taper"]  # exposure: opt-in
     layer(color, velocity).sum().backward()
     assert layer.shutter_shape["taper"].grad != 0
 
@@ -105,7 +105,7 @@ def test_jax_layer_trains_under_jit_grad_and_vmaps():
 
     color, velocity, depth = (jnp.asarray(a, dtype=jnp.float32) for a in (COLOR, VELOCITY * 2, DEPTH))
     target = jax_impl.reconstruct(color, velocity * 0.6, depth, samples=7)
-    layer = jax_impl.MotionBlur("reconstruct", samples=7, exposure=1.0)
+    layer = jax_impl.MotionBlur("reconstruct", samples=7, exposure=1.0, learn_exposure=True)
 
     optimizer = optax.adam(0.03)
     state = optimizer.init(eqx.filter(layer, eqx.is_inexact_array))
@@ -133,4 +133,17 @@ def test_jax_layer_learns_a_shutter_shape():
     layer = jax_impl.MotionBlur("gather", samples=7, shutter=Tukey(0.3), learn_shutter=True)
     grads = eqx.filter_grad(lambda m: m(jnp.asarray(COLOR), jnp.asarray(VELOCITY * 2)).sum())(layer)
     assert float(grads.shutter_shape["taper"]) != 0.0
-    assert float(grads.exposure) != 0.0
+    assert grads.exposure is None  # a static float unless learn_exposure=True
+
+
+def test_exposure_is_learnable_only_when_asked(backend):
+    """A network that predicts the velocity needs no second scale on it: the exposure is a constant
+    unless learn_exposure=True."""
+    for learn in (False, True):
+        layer = backend.ops.MotionBlur("gather", samples=3, exposure=0.5, **({"learn_exposure": True} if learn else {}))
+        if backend.name == "torch":
+            assert [name for name, _ in layer.named_parameters()] == (["exposure"] if learn else [])
+        else:
+            import equinox as eqx
+
+            assert eqx.is_inexact_array(layer.exposure) is learn

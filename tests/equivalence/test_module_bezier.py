@@ -103,7 +103,7 @@ def test_learnable_shutter_of_the_scatter(backend):
     color, depth, velocity = (backend.array(a) for a in (COLOR, DEPTH, VELOCITY))
     with pytest.raises(ValueError, match="learn_shutter needs a window with a shape parameter"):
         backend.ops.MotionBlur("bezier", samples=5, learn_shutter=True)
-    layer = backend.ops.MotionBlur("bezier", samples=5, shutter="gaussian", learn_shutter=True)
+    layer = backend.ops.MotionBlur("bezier", samples=5, shutter="gaussian", learn_shutter=True, learn_exposure=True)
     expected = backend.ops.bezier_scatter(color, depth, -velocity, velocity, samples=5, shutter=Gaussian(0.5))
     np.testing.assert_allclose(backend.numpy(layer(color, velocity, depth)), backend.numpy(expected), rtol=1e-12, atol=1e-12)
     if backend.name == "torch":
@@ -124,7 +124,7 @@ def test_layer_fits_an_exposure_on_curved_offsets(backend):
     color, depth, prev, nxt = (backend.array(a, "float32") for a in (COLOR, DEPTH, PREV * 2, NEXT * 2))
     paths = {"offset_prev": prev, "offset_next": nxt}
     target = backend.ops.MotionBlur("bezier", samples=8, exposure=0.7, learn_exposure=False)(color, None, depth, **paths)
-    layer = backend.ops.MotionBlur("bezier", samples=8, exposure=1.0)
+    layer = backend.ops.MotionBlur("bezier", samples=8, exposure=1.0, learn_exposure=True)
     if backend.name == "torch":
         import torch
 

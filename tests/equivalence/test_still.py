@@ -16,7 +16,7 @@ import pytest
 
 from diffblur import _scatter_options, conventions, reference
 from diffblur.scenes import preset_scene, render_buffers
-from tests.backends import BACKENDS
+from tests.backends import BACKENDS, backend_params
 
 LEFTOVER = 1e-6
 
@@ -32,7 +32,7 @@ def propeller():
 
 
 @pytest.mark.parametrize("fused", [False, None], ids=["tensor_ops", "fused_where_it_applies"])
-@pytest.mark.parametrize("backend", BACKENDS, ids=lambda b: b.name)
+@pytest.mark.parametrize("backend", backend_params())
 def test_scatter_leftovers_give_the_result_of_exact_zeros(backend, fused, propeller):
     buffers, (prev, nxt) = propeller
     a = backend.array
@@ -90,7 +90,7 @@ def fresh_warning(monkeypatch):
     monkeypatch.setattr(_scatter_options, "_warned_without_still", False)
 
 
-@pytest.mark.parametrize("backend", BACKENDS, ids=lambda b: b.name)
+@pytest.mark.parametrize("backend", backend_params())
 def test_fill_still_warns_without_still_pixels(backend, fresh_warning):
     rng = np.random.default_rng(3)
     color = backend.array(rng.uniform(size=(2, 1, 6, 6)))

@@ -36,7 +36,7 @@ def inputs():
 
 
 def layer_loss(exposure, color, velocity):
-    layer = jax_impl.MotionBlur("gather", samples=5, exposure=0.8)
+    layer = jax_impl.MotionBlur("gather", samples=5, exposure=0.8, learn_exposure=True)
     layer = eqx.tree_at(lambda m: m.exposure, layer, exposure)
     return jnp.mean(layer(color, velocity) ** 2)
 

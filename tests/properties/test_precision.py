@@ -14,14 +14,11 @@ import torch
 
 from tests.properties.ops import OPS, OPS_BY_NAME, Example
 from tests.properties.runner import forward, forward_and_grads
+from tests.tolerances import tolerance
 
-#: Largest error allowed, relative to the output's scale, per half type: twice the worst measured
-#: on these 20 x 21 images when positions were held in the half type (float16: 6.2e-3, warp_blend;
-#: bfloat16: 5.5e-2, the layer's warp_blend). With positions, offsets and weights in float32 the
-#: worst measured (PyTorch) is 7.6e-4 / 5.8e-3 (velocity_from_motion, elementwise), and on the
-#: 300 px wide images 2.4e-4 / 2.0e-3 (one rounding of the output), where the half-type positions
-#: were 0.03-0.67 / 0.43-0.82 off.
-TOLERANCE = {"float16": 1.5e-2, "bfloat16": 1.2e-1}
+#: Largest error allowed, relative to the output's scale, per half type (tests/tolerances.py, "half";
+#: with half-type positions the 300 px wide images were 0.03-0.67 / 0.43-0.82 off).
+TOLERANCE = {dtype: tolerance(dtype, "half") for dtype in ("float16", "bfloat16")}
 
 HALF_OPS = [op for op in OPS if op.differentiable]
 #: Speeds 0, 1e-8, 0.3, 2.5 and 1e4 px times 1 to 1.5 (no two alike: a tie between vectors of one

@@ -36,7 +36,7 @@ class TinyBlurNet(nn.Module):
         super().__init__()
         torch.manual_seed(0)
         self.velocity = nn.Conv2d(3, 2, 3, padding=1, dtype=torch.float64)
-        self.blur = torch_impl.MotionBlur("reconstruct", samples=5, max_radius=4.0)
+        self.blur = torch_impl.MotionBlur("reconstruct", samples=5, max_radius=4.0, learn_exposure=True)
         self.blur.exposure.data = self.blur.exposure.data.double()
 
     def forward(self, color, depth):

@@ -1,9 +1,9 @@
-"""Measure the methods of issue 7 (seed 002's warp_blend and accumulate_warps, seed 001's adaptive
-tiles and pyramid) against the scenes' ground truth, time them in PyTorch and JAX, compare adaptive
+"""Measure seed 002's warp_blend and accumulate_warps and seed 001's adaptive
+tiles and pyramid against the scenes' ground truth, time them in PyTorch and JAX, compare adaptive
 with full-rate sampling on a 90 %-still scene, and draw accumulate_warps' ghosting.
 
-    PYTHONPATH=. python scripts/measure_issue7.py --out docs          # everything
-    PYTHONPATH=. python scripts/measure_issue7.py --only ghosting     # just the picture
+    PYTHONPATH=. python scripts/measure_warps_adaptive_pyramid.py --out docs          # everything
+    PYTHONPATH=. python scripts/measure_warps_adaptive_pyramid.py --only ghosting     # just the picture
 
 Importable: `accuracy_table`, `adaptive_speed`, `save_ghosting_picture` (tests may call them small).
 Timings are the median of `repeats` runs after one warm-up, forward only, float32, one image; JAX
