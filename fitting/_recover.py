@@ -374,7 +374,12 @@ def recover(
         # Only what the method reads: the options are static data of JAX's compiled functions.
         radius = (max_radius if max_radius is not None else _auto_max_radius(speed, samples, max(h, w))) if method == "reconstruct" else None
         points = _scatter_points(speed) if method == "scatter" else None
-        options = {"method": method, "samples": samples, "arc_samples": arc_samples, "shutter": window, "max_radius": radius, "jac": jac, "scatter_samples": points}
+        # The scatter and the gather take the shutter as a table of data (`_models.TabulatedWindow`,
+        # exact at their points), so that JAX compiles one loss for every shutter; reconstruct's
+        # jittered taps read the window anywhere.
+        counts = {"scatter": [points], "gather": [samples]}.get(method, []) + ([arc_samples] if model == "rotation" else [])
+        extras["shutter_tables"] = _models.shutter_tables(be, window, counts)
+        options = {"method": method, "samples": samples, "arc_samples": arc_samples, "shutter": window if method == "reconstruct" else None, "max_radius": radius, "jac": jac, "scatter_samples": points}
         return _models.Context(be, be.array(a["color"]), be.array(a["depth"]), be.array(a["target"]), h, w, 0.5**level, options, extras)
 
     traced = Traced(fit_model)
