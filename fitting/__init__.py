@@ -8,7 +8,7 @@ fit asks for it.
 """
 
 from fitting._models import MODELS, CameraMotion, Dense, Exposure, Global, Layers, Model, MotionIds, Rotation, Shutter, Tiles, depth_layers
-from fitting._recover import FitResult, recover
+from fitting._recover import METHOD_SHIFT_WARNING, FitResult, recover
 from fitting._select import Selection, select_model
 
-__all__ = ["MODELS", "CameraMotion", "Dense", "Exposure", "FitResult", "Global", "Layers", "Model", "MotionIds", "Rotation", "Selection", "Shutter", "Tiles", "depth_layers", "recover", "select_model"]
+__all__ = ["METHOD_SHIFT_WARNING", "MODELS", "CameraMotion", "Dense", "Exposure", "FitResult", "Global", "Layers", "Model", "MotionIds", "Rotation", "Selection", "Shutter", "Tiles", "depth_layers", "recover", "select_model"]

@@ -79,10 +79,70 @@ class Context:
     extras: dict
 
 
+@dataclass(frozen=True)
+class TabulatedWindow(ShutterWindow):
+    """A shutter window given by its antiderivative W at the edges of K equal strata of [-1, 1]
+    (`edges`, `values`: K + 1 each, arrays of the fit's framework), linear in between.
+
+    The ops weigh the scatter's K points and the gather's K taps by the window's mass on their
+    strata, which this gives exactly; and a table is data to JAX, where a window is a static option:
+    the fit's compiled loss then serves every shutter, not one each."""
+
+    edges: Any
+    values: Any
+    name: ClassVar[str] = "tabulated"
+
+    def _per_stratum(self, x: Any, t: Any) -> Any:
+        """A (K,) array `x` shaped to broadcast against t[..., None] (JAX's strict rank promotion)."""
+        return x.reshape((1,) * len(t.shape) + (-1,))
+
+    def _position(self, t: Any) -> Any:
+        """(..., K): how far t is through each stratum, 0 to 1 inside it."""
+        low, width = self.edges[:-1], self.edges[1:] - self.edges[:-1]
+        return (t[..., None] - self._per_stratum(low, t)) / self._per_stratum(width, t)
+
+    def _masses(self, t: Any) -> Any:
+        return self._per_stratum(self.values[1:] - self.values[:-1], t)
+
+    def weight(self, t: Any, xp: Any = np) -> Any:
+        t = _as_array(t, xp)
+        u = self._position(t)
+        density = self._masses(t) / self._per_stratum(self.edges[1:] - self.edges[:-1], t)
+        return xp.where((u >= 0.0) & (u < 1.0), density + 0.0 * u, 0.0 * u).sum(-1)
+
+    def _antiderivative(self, t: Any, xp: Any) -> Any:
+        u = self._position(t)
+        u = xp.where(u < 0.0, 0.0 * u, xp.where(u > 1.0, 0.0 * u + 1.0, u))
+        return self.values[0] + (u * self._masses(t)).sum(-1)
+
+
+def _as_array(t: Any, xp: Any) -> Any:
+    return np.asarray(t, dtype=np.float64) if xp is np else t
+
+
+def shutter_tables(be: Any, window: ShutterWindow, counts: Any) -> dict[int, tuple[Any, Any]]:
+    """For each count K, the edges of K equal strata of [-1, 1] and `window`'s antiderivative there
+    (`TabulatedWindow`'s data), as arrays of `be`."""
+    tables = {}
+    for count in sorted(set(counts)):
+        edges = np.linspace(-1.0, 1.0, count + 1)
+        tables[count] = (be.array(edges), be.array(np.asarray(window.antiderivative(edges), dtype=np.float64)))
+    return tables
+
+
+def shutter_of(ctx: Context, count: int) -> ShutterWindow:
+    """The window an op of `count` points or taps blurs with: the level's table for that count
+    (`shutter_tables`) where there is one, else the options' window."""
+    tables = ctx.extras.get("shutter_tables") or {}
+    return TabulatedWindow(*tables[count]) if count in tables else ctx.options["shutter"]
+
+
 def _blur(ctx: Context, velocity: Any, shutter: Any = None) -> Any:
     """The configured op on a (1, 2, h, w) velocity field."""
     o = ctx.options
-    shutter = o["shutter"] if shutter is None else shutter
+    if shutter is None:
+        count = {"gather": o["samples"], "scatter": o.get("scatter_samples")}.get(o["method"])
+        shutter = shutter_of(ctx, count) if count is not None else o["shutter"]
     # JAX's fused kernels have reverse-mode gradients only; LM and Dogleg take forward-mode Jacobians.
     fused = False if ctx.be.name == "jax" and o.get("jac", "fwd") == "fwd" else None
     if o["method"] == "gather":
@@ -123,7 +183,7 @@ def _hidden_share(ctx: Context, velocity: Any) -> Any:
         return layered_scatter(ctx, velocity, hidden_share=True)
     ones = ctx.depth * 0.0 + 1.0
     o = ctx.options
-    return 1.0 - ctx.be.ops.bezier_scatter(ones, ctx.depth, -velocity, velocity, degree=1, samples=o["scatter_samples"], shutter=o["shutter"], background=ones * 0.0)
+    return 1.0 - ctx.be.ops.bezier_scatter(ones, ctx.depth, -velocity, velocity, degree=1, samples=o["scatter_samples"], shutter=shutter_of(ctx, o["scatter_samples"]), background=ones * 0.0)
 
 
 @dataclass
@@ -223,7 +283,7 @@ def layered_scatter(ctx: Context, motion: Any, *, hidden_share: bool = False) ->
     depth = be.concat([stack.depth] * n)
     zero = sources * 0.0
     # background=0: what no path covers adds nothing, so each layer comes out premultiplied.
-    splatted = be.ops.bezier_scatter(sources, depth, -motion, motion, degree=1, samples=o["scatter_samples"], shutter=o["shutter"], background=zero)
+    splatted = be.ops.bezier_scatter(sources, depth, -motion, motion, degree=1, samples=o["scatter_samples"], shutter=shutter_of(ctx, o["scatter_samples"]), background=zero)
     splatted = splatted.reshape(n, layers, channels + 2, ctx.height, ctx.width)
     out, through, hidden = 0.0, 1.0, 0.0
     for k in range(layers):
@@ -781,7 +841,7 @@ class Rotation(Model):
         if ctx.be.name == "jax" and o.get("jac", "fwd") == "fwd":
             kwargs["fused"] = False
         return ctx.be.ops.bezier_scatter(
-            ctx.color, ctx.depth, None, None, arc_center=center, arc_angle=p["angle"] * ctx.extras["mask"], samples=o["arc_samples"], shutter=o["shutter"], **kwargs
+            ctx.color, ctx.depth, None, None, arc_center=center, arc_angle=p["angle"] * ctx.extras["mask"], samples=o["arc_samples"], shutter=shutter_of(ctx, o["arc_samples"]), **kwargs
         )
 
     def rescale(self, p, factor, height, width):

@@ -33,6 +33,11 @@ STILL_SPEED = 0.25
 SEARCH_RADIUS = 16.0
 #: A fit that explains less than this fraction of the blur (`FitResult.explained`) warns.
 EXPLAINED_WARNING = 0.5
+#: A fit through a method other than the model's default scatter is refitted through the scatter
+#: from its answer; a velocity field that moves more than this (pixels, at any pixel) there means the
+#: method's own error biased the fit: not converged, with a warning. It is the 90th-percentile
+#: target for a global velocity.
+METHOD_SHIFT_WARNING = 0.25
 
 
 @dataclass
@@ -44,10 +49,14 @@ class FitResult:
     mean squared residual (plus prior) on the cropped finest level. blurred: (1, C, H, W) the target
     re-blurred with the fitted parameters. history: the loss at every solver step, all levels in
     order. velocity: (1, 2, H, W) the fitted velocity field (pixels), in the sign `params` reports.
-    converged: the solver's own stopping criterion was met at the finest level (message: why it
-    stopped). explained: 1 - loss / (the loss of the unblurred sharp frame on the same pixels): 1 for
-    a perfect fit, 0 for one no better than no blur. ids: the ID map the palette refers to (`layers`,
-    `motion_ids`). n_params, seconds, the rest as named.
+    converged: the solver's own stopping criterion was met at the finest level, and the method did
+    not bias the fit (see method_shift; message: why not). explained: 1 - loss / (the loss of the unblurred sharp frame on the same pixels): 1 for
+    a perfect fit, 0 for one no better than no blur. method_shift: for a fit through reconstruct or
+    the gather where the model's default is the scatter, how far (pixels, the largest over the
+    compared pixels) the velocity field moves when the scatter refits from this answer; past
+    METHOD_SHIFT_WARNING the fit is reported not converged (NaN when not checked, as for a fit that
+    did not converge anyway). ids: the ID map the palette refers to (`layers`, `motion_ids`).
+    n_params, seconds, the rest as named.
     """
 
     model: str
@@ -67,6 +76,7 @@ class FitResult:
     explained: float = float("nan")
     message: str = ""
     method: str = ""
+    method_shift: float = float("nan")
     ids: np.ndarray | None = field(repr=False, default=None)
 
 
@@ -237,6 +247,7 @@ def recover(
     dtype: str = "float64",
     on_step: Callable[[int, float], None] | None = None,
     warn: bool = True,
+    check_method: bool = True,
 ) -> FitResult:
     """Recover a motion model's parameters from a sharp frame and a blurred target.
 
@@ -282,6 +293,10 @@ def recover(
         on_step: called as on_step(step, loss) after every solver step (e.g. a progress bar).
         warn: a `UserWarning` naming the model when the fit did not converge or explains less than
             EXPLAINED_WARNING (half) of the blur.
+        check_method: when `method` is reconstruct or the gather and the model's default is the
+            scatter, refit a converged answer through the scatter (finest level, no search) and
+            report the move as `FitResult.method_shift`; past METHOD_SHIFT_WARNING the method's own
+            error has biased the fit, which then counts as not converged.
 
     Returns:
         A `FitResult`.
@@ -359,7 +374,12 @@ def recover(
         # Only what the method reads: the options are static data of JAX's compiled functions.
         radius = (max_radius if max_radius is not None else _auto_max_radius(speed, samples, max(h, w))) if method == "reconstruct" else None
         points = _scatter_points(speed) if method == "scatter" else None
-        options = {"method": method, "samples": samples, "arc_samples": arc_samples, "shutter": window, "max_radius": radius, "jac": jac, "scatter_samples": points}
+        # The scatter and the gather take the shutter as a table of data (`_models.TabulatedWindow`,
+        # exact at their points), so that JAX compiles one loss for every shutter; reconstruct's
+        # jittered taps read the window anywhere.
+        counts = {"scatter": [points], "gather": [samples]}.get(method, []) + ([arc_samples] if model == "rotation" else [])
+        extras["shutter_tables"] = _models.shutter_tables(be, window, counts)
+        options = {"method": method, "samples": samples, "arc_samples": arc_samples, "shutter": window if method == "reconstruct" else None, "max_radius": radius, "jac": jac, "scatter_samples": points}
         return _models.Context(be, be.array(a["color"]), be.array(a["depth"]), be.array(a["target"]), h, w, 0.5**level, options, extras)
 
     traced = Traced(fit_model)
@@ -491,6 +511,8 @@ def recover(
         method=method,
         ids=arrays["ids"],
     )
+    if check_method and result.converged and method != DEFAULT_METHODS[model] and DEFAULT_METHODS[model] == "scatter":
+        _check_method(result, sharp=color, target=goal, model=fit_model, depth=depth, backend=backend, shutter=shutter, samples=samples, arc_samples=arc_samples, margin=margin, weight=weight, dtype=dtype)
     if warn and not result.converged:
         warnings.warn(f"recover(model={model!r}) did not converge: {result.message}", UserWarning, stacklevel=2)
     if warn and not explained >= EXPLAINED_WARNING:
@@ -500,3 +522,26 @@ def recover(
             stacklevel=2,
         )
     return result
+
+
+def _check_method(result: FitResult, *, sharp: np.ndarray, target: np.ndarray, model: _models.Model, depth: Any, margin: int, **options: Any) -> None:
+    """Refit `result` through the scatter from its answer and record how far the velocity field
+    moves (`FitResult.method_shift`); past METHOD_SHIFT_WARNING mark it not converged, saying why.
+
+    The scatter is the forward model whose own error is smallest on the held-out family, so a fit
+    through reconstruct or the gather that it moves far was pulled there by that method's error, a
+    bias that neither the fit's loss nor `explained` shows."""
+    check = recover(sharp, target, model=model, depth=depth, method="scatter", levels=1, init=result.raw, search=False, margin=margin, warn=False, check_method=False, **options)
+    height, width = sharp.shape[2:]
+    inner = (slice(None), slice(None), slice(margin, height - margin), slice(margin, width - margin))
+    a, b = result.velocity[inner][0], check.velocity[inner][0]
+    # Up to sign at each pixel: a symmetric shutter leaves each velocity's sign open.
+    per_pixel = np.minimum(np.hypot(*(a - b)), np.hypot(*(a + b)))
+    result.method_shift = float(per_pixel.max())
+    if result.method_shift > METHOD_SHIFT_WARNING:
+        result.converged = False
+        result.message = (
+            f"through method={result.method!r} the fit is biased by the method's own error: refitted through the scatter from its answer, "
+            f"the velocity field moves by up to {result.method_shift:.2f} px (more than {METHOD_SHIFT_WARNING}); fit with method='scatter'"
+        )
+

@@ -273,6 +273,7 @@ def fit_one(fit: dict[str, Any]) -> dict[str, Any]:
             extra=_plain(extra),
             converged=None if converged is None else bool(converged),
             explained=_plain(getattr(result, "explained", None)),
+            method_shift=_plain(getattr(result, "method_shift", None)),
             solver=result.solver,
             steps=len(result.history),
             loss=float(result.loss),

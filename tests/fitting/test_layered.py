@@ -13,6 +13,7 @@ import pytest
 import fitting
 from diffblur._reference_scatter import still_fill
 from diffblur._textures import pad
+from diffblur.shutters import LinearRamp, Trapezoid, get_shutter
 from diffblur.scenes import Camera, ImageTexture, Layer, Scene, Static, Translation, checkers, photo, render_buffers
 from fitting import _backends, _models
 from fitting.scenes import layer_ids
@@ -20,13 +21,13 @@ from fitting.scenes import layer_ids
 SIZE = 40
 
 
-def _scene(objects):
+def _scene(objects, shutter="box"):
     """A still photograph (depth 12) behind textured cards: (depth, velocity, top-left, side) each."""
     layers = [Layer(ImageTexture(photo("astronaut", SIZE + 8, SIZE + 8), origin=(-4, -4)), 12.0, Static(), "background")]
     for k, (depth, velocity, corner, side) in enumerate(objects):
         paint = checkers(side, side, 5.0 + 2 * k, (0.9, 0.3 * k, 0.1), (0.1, 0.2, 0.8 - 0.3 * k))
         layers.append(Layer(pad(paint, np.ones((side, side)), corner), depth, Translation(velocity), f"card {k}"))
-    return render_buffers(Scene(SIZE, SIZE, tuple(layers)), shutter="box")
+    return render_buffers(Scene(SIZE, SIZE, tuple(layers)), shutter=shutter)
 
 
 @pytest.fixture(scope="module")
@@ -96,7 +97,8 @@ def test_torch_and_jax_layered_scatter_agree(crossing):
 
 @pytest.mark.slow
 def test_jax_fits_of_one_size_compile_once(crossing):
-    """A second fit of the same size and model options reuses every compiled function."""
+    """A second fit of the same size and model options reuses every compiled function, whatever
+    its shutter (a table of data to the compiled loss, `_models.TabulatedWindow`)."""
     import jax
 
     compiles = []
@@ -105,15 +107,16 @@ def test_jax_fits_of_one_size_compile_once(crossing):
         if event == "/jax/core/compile/backend_compile_duration":
             compiles.append(duration)
 
-    # Other cards, places and directions, at the same speeds (the scatter's points per path follow
-    # the speed, and they are a static option).
-    other = _scene([(3.0, (0.0, -5.0), (16, 18), 12), (5.0, (1.0, 5.0), (6, 8), 11)])
+    # Other cards, places, directions and shutter, at the same speeds (the scatter's points per path
+    # follow the speed, and they are a static option).
+    shutter = Trapezoid(ramp=0.4)
+    other = _scene([(3.0, (0.0, -5.0), (16, 18), 12), (5.0, (1.0, 5.0), (6, 8), 11)], shutter=shutter)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
         fitting.recover(crossing.color, crossing.target, depth=crossing.depth, model=fitting.Exposure(velocity=crossing.velocity), backend="jax", levels=1)
         jax.monitoring.register_event_duration_secs_listener(listen)
         try:
-            result = fitting.recover(other.color, other.target, depth=other.depth, model=fitting.Exposure(velocity=other.velocity), backend="jax", levels=1)
+            result = fitting.recover(other.color, other.target, depth=other.depth, model=fitting.Exposure(velocity=other.velocity), backend="jax", levels=1, shutter=shutter)
         finally:
             jax.monitoring.unregister_event_duration_listener(listen)
     assert compiles == [], compiles
@@ -141,3 +144,21 @@ def test_select_model_picks_camera_for_a_zoom():
     buffers = render_buffers(Scene(SIZE, SIZE, (background,), Camera(advance=2.0, center=(c, c))), shutter="box")
     selection = fitting.select_model(buffers.color, buffers.target, depth=buffers.depth)
     assert selection.choice == "camera", selection.reason
+
+
+@pytest.mark.parametrize("backend", ["torch", "jax"])
+def test_a_tabulated_shutter_blurs_as_its_window_does(backend):
+    """The fit's table of a window's antiderivative at the strata edges of K points gives the
+    scatter's and the gather's masses exactly, for every kind of window."""
+    be = _backends.adapter(backend)
+    rng = np.random.default_rng(3)
+    color, depth, velocity = (be.array(x) for x in (rng.random((1, 3, 10, 12)), rng.uniform(1.0, 3.0, (1, 1, 10, 12)), rng.normal(0.0, 3.0, (1, 2, 10, 12))))
+    windows = (get_shutter("box"), get_shutter("raised_cosine"), Trapezoid(ramp=0.4), LinearRamp(slope=-0.6))
+    # JAX compiles the ops anew for each window (a static option): two of them there.
+    for window in windows if backend == "torch" else windows[1::2]:
+        tables = _models.shutter_tables(be, window, [16, 9])
+        for count, blur in ((16, lambda w: be.ops.bezier_scatter(color, depth, -velocity, velocity, degree=1, samples=16, shutter=w)), (9, lambda w: be.ops.gather_blur(color, velocity, samples=9, shutter=w))):
+            np.testing.assert_allclose(be.numpy(blur(_models.TabulatedWindow(*tables[count]))), be.numpy(blur(window)), rtol=0, atol=1e-12, err_msg=f"{window} {count}")
+        edges = np.linspace(-1.0, 1.0, 10)
+        np.testing.assert_allclose(be.numpy(_models.TabulatedWindow(*tables[9]).antiderivative(be.array(edges), be.xp)), window.antiderivative(edges), atol=1e-15)
+
