@@ -316,6 +316,9 @@ def bezier_scatter(
     if relative:  # the band relative to depth: compare log depths (`diffblur.checks.depth_band`)
         depth, extent = jnp.log(depth), jnp.log1p(extent)
     given = {name: _checks.finite_values(name, value) for name, value in given.items()}
+    color = _checks.finite_values("color", color)
+    if background is not None:
+        background = _checks.finite_values("background", background)
 
     if fused is not False:
         from diffblur._fused import use_fused
