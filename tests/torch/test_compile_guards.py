@@ -49,3 +49,29 @@ def test_warp_blend_chained_reads_stay_out_of_compiled_graphs(iterations):
         assert gathers == 8
     else:
         assert gathers == 0
+
+
+# A NaN velocity under torch.compile (which skips the data checks) made NaN tap positions, whose
+# integer indices fell outside the image: eager aten raised, inductor's generated C++ aborted the
+# process ("index out of bounds: 0 <= tmp50 < 272" on a 16x17 image). The indices are now clamped.
+# The test skips the checks as torch.compile does and runs eagerly (an inductor compile is ~20 s of
+# CPU; `scripts/measure_compile_vs_eager.py` has the compiled case): eager aten raised there too.
+NAN_CALLS = {
+    "bilinear": lambda c, v: torch_impl.gather_blur(c, v, samples=3, fused=False),
+    "nearest": lambda c, v: torch_impl.gather_blur(c, v, samples=3, sampling="nearest", fused=False),
+    "adaptive": lambda c, v: torch_impl.gather_blur(c, v, samples=3, adaptive=True, fused=False),
+    "pyramid": lambda c, v: torch_impl.gather_blur(c, v, samples=3, pyramid=True, fused=False),
+}
+
+
+@pytest.mark.parametrize("op", list(NAN_CALLS))
+def test_nan_velocity_with_the_checks_skipped_reads_inside_the_image(op, monkeypatch):
+    from torch_impl import _checks
+
+    monkeypatch.setattr(_checks, "finite_values", lambda name, x: None)  # as under torch.compile
+    color = torch.rand(1, 3, 16, 17, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    velocity = torch.ones(1, 2, 16, 17, dtype=torch.float64)
+    velocity[0, 0, 5, 6] = float("nan")  # x only: with both, the wrapped index of NaN rows and columns happened to be 0
+    out = NAN_CALLS[op](color, velocity)
+    assert out.shape == color.shape
+    assert torch.isfinite(out[..., :3, :]).all()  # rows the NaN pixel's taps cannot reach stay finite
