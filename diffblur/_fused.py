@@ -24,6 +24,8 @@ memory is O(pixels x threads) (2 threads here), never O(pixels x taps).
 from __future__ import annotations
 
 import math
+import os
+import threading
 from typing import Any
 
 import numpy as np
@@ -34,6 +36,40 @@ try:  # numba is a dependency; the guard keeps the pure ops usable where it cann
     import numba
 except ImportError:  # pragma: no cover - exercised only without numba
     numba = None
+
+#: The numba threading layer the kernels ask for, unless the user set NUMBA_THREADING_LAYER:
+#: "forksafe" is TBB where it is installed, else numba's own "workqueue". The default on Linux is
+#: GNU OpenMP, which is not fork-safe: a DataLoader worker forked after the parent ran a kernel died
+#: ("Terminating: fork() called from a process already using GNU OpenMP"). It takes effect when this
+#: module is imported before the process's first parallel numba launch: every op imports it before
+#: its first kernel, so only numba code of the user's own, run earlier, can have chosen the layer.
+THREADING_LAYER = "forksafe"
+
+
+def _pin_threading_layer() -> None:
+    if numba is None or "NUMBA_THREADING_LAYER" in os.environ:
+        return
+    # Both: numba re-reads its config from NUMBA_* variables whenever they change, which would put
+    # the default back if only the config attribute were set.
+    os.environ["NUMBA_THREADING_LAYER"] = THREADING_LAYER
+    numba.config.THREADING_LAYER = THREADING_LAYER
+
+
+_pin_threading_layer()
+
+#: Held while a kernel runs. The workqueue layer is not thread-safe: two threads launching kernels
+#: at once (JAX runs callbacks on its own threads; a user's thread pool) abort the process. Each
+#: kernel already uses every core, so running them one at a time costs nothing measurable.
+_KERNEL_LOCK = threading.RLock()
+
+
+def _fresh_lock_in_child() -> None:
+    # A fork while another thread held the lock would leave it held for ever in the child.
+    global _KERNEL_LOCK
+    _KERNEL_LOCK = threading.RLock()
+
+
+os.register_at_fork(after_in_child=_fresh_lock_in_child)
 
 __all__ = [
     "available",
@@ -117,10 +153,25 @@ def row_order(rows: int) -> np.ndarray:
     return np.argsort(np.arange(rows) % _ROW_INTERLEAVE, kind="stable").astype(np.int64)
 
 
+class _Locked:
+    """A parallel kernel called from Python under `_KERNEL_LOCK`; its other attributes are the
+    numba dispatcher's (`signatures`, ...)."""
+
+    def __init__(self, dispatcher):
+        self._dispatcher = dispatcher
+
+    def __call__(self, *args):
+        with _KERNEL_LOCK:
+            return self._dispatcher(*args)
+
+    def __getattr__(self, name):
+        return getattr(self._dispatcher, name)
+
+
 def _jit(function):
     if numba is None:  # pragma: no cover
         return function
-    return numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy", fastmath=True)(function)
+    return _Locked(numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy", fastmath=True)(function))
 
 
 def _inline(function):

@@ -62,9 +62,12 @@ def positive_values(name: str, x: jax.Array) -> jax.Array:
     return data_check(x, jnp.logical_not(jnp.all(x > 0)), checks.nonpositive_message(name))
 
 
-def finite_values(name: str, x: jax.Array) -> jax.Array:
-    """Raise if any element is NaN or infinite (see `data_check`)."""
-    return data_check(x, jnp.logical_not(jnp.all(jnp.isfinite(x))), checks.nonfinite_message(name))
+def finite_values(name: str, x: jax.Array, *, carry: jax.Array | None = None) -> jax.Array:
+    """Raise if any element is NaN or infinite (see `data_check`). Returns x, or `carry` with the check
+    attached when given: under a sharded jax.jit the array a check returns is gathered onto one
+    device, and the colour, whose sharding the output follows, must keep its own. Its check rides on
+    an argument the other checks gather anyway (velocity, depth); only a flag crosses devices."""
+    return data_check(x if carry is None else carry, jnp.logical_not(jnp.all(jnp.isfinite(x))), checks.nonfinite_message(name))
 
 
 def positive_scalar(name: str, value: object, like: jax.Array) -> float | jax.Array:

@@ -24,8 +24,17 @@ from jax_impl._sampling import widen_window
 
 
 def _backend_reason() -> str | None:
+    """Why no fused kernel can run in this JAX process, or None. Shared by every fused op."""
     if jax.default_backend() != "cpu":
         return f"JAX's default backend is {jax.default_backend()} (the fused kernel runs on the CPU)"
+    if jax.device_count() > 1:
+        # A pure_callback runs on one device: under a sharded jax.jit XLA gathers the whole batch to
+        # it, and the gradient of bezier_scatter's fused splats then deadlocked in an all-reduce
+        # until XLA aborted the process (2 host devices, issue 25). The tensor ops shard.
+        return (
+            f"JAX has {jax.device_count()} devices and the fused kernel's host callback runs on one"
+            " (under a sharded jax.jit it deadlocked); pass fused=False, or run with one device"
+        )
     return None
 
 

@@ -17,16 +17,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from diffblur import _fused_scatter
-from jax_impl._fused import _bound
+from jax_impl._fused import _backend_reason, _bound
 from jax_impl._primitives import _floor_extent
 
 
 def unfused_reason(color) -> str | None:
     """Why the fused splats cannot run on these inputs, or None when they can."""
-    reason = _fused_scatter.splat_unfused_reason(str(jnp.dtype(color.dtype)))
-    if reason is None and jax.default_backend() != "cpu":
-        return f"JAX's default backend is {jax.default_backend()} (the fused kernel runs on the CPU)"
-    return reason
+    return _fused_scatter.splat_unfused_reason(str(jnp.dtype(color.dtype))) or _backend_reason()
 
 
 def _host_forward(flags, *arrays):

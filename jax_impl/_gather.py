@@ -77,6 +77,7 @@ def gather_blur(
     checks.require_same_batch_and_size("color", color.shape, [("velocity", velocity.shape)])
     _checks.same_dtype("velocity", velocity, "color", color)
     velocity = _checks.finite_values("velocity", velocity)
+    velocity = _checks.finite_values("color", color, carry=velocity)
     samples = checks.require_odd_int("samples", samples)
     sampling = checks.require_choice("sampling", sampling, SAMPLING_MODES)
     window = get_shutter(shutter)

@@ -138,6 +138,7 @@ def reconstruct(
     _checks.same_dtype("depth", depth, "color", color)
     velocity = _checks.finite_values("velocity", velocity)
     depth = _checks.finite_values("depth", _checks.positive_values("depth", depth))
+    depth = _checks.finite_values("color", color, carry=depth)
     o = reconstruct_options(
         max_radius=max_radius,
         samples=samples,

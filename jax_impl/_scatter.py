@@ -312,6 +312,9 @@ def bezier_scatter(
     if relative:  # the band relative to depth: compare log depths (`diffblur.checks.depth_band`)
         depth, extent = jnp.log(depth), jnp.log1p(extent)
     given = {name: _checks.finite_values(name, value) for name, value in given.items()}
+    depth = _checks.finite_values("color", color, carry=depth)
+    if background is not None:
+        depth = _checks.finite_values("background", background, carry=depth)
 
     if fused is not False:
         from diffblur._fused import use_fused

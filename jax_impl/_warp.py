@@ -79,6 +79,10 @@ def accumulate_warps(
     else:
         offset_prev = _vector_field("offset_prev", offset_prev, color)
         offset_next = _vector_field("offset_next", offset_next, color)
+    if way == "velocity":
+        velocity = _checks.finite_values("color", color, carry=velocity)
+    else:
+        offset_prev = _checks.finite_values("color", color, carry=offset_prev)
     # Positions, offsets, weights and the sum in float32 for a half image (its dtype else).
     wide = position_dtype(color.dtype)
     velocity, offset_prev, offset_next = (None if v is None else v.astype(wide) for v in (velocity, offset_prev, offset_next))
@@ -135,6 +139,7 @@ def warp_blend(
     """
     color = _checks.image("color", color)
     velocity = _vector_field("velocity", velocity, color)
+    velocity = _checks.finite_values("color", color, carry=velocity)
     o = warp_blend_options(iterations=iterations, backward_scale=backward_scale, alpha=alpha, sampling=sampling)
     _, _, height, width = color.shape
     # Positions, offsets and the blended image in float32 for a half image (its dtype else).

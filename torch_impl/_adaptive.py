@@ -36,12 +36,12 @@ def _sample_rows(table: Tensor, base: Tensor, x: Tensor, y: Tensor, height: int,
     x = _clamp(x, width - 1.0)
     y = _clamp(y, height - 1.0)
     if mode == "nearest":
-        column = torch.floor(x + 0.5).long().clamp(max=width - 1)
-        row = torch.floor(y + 0.5).long().clamp(max=height - 1)
+        column = torch.floor(x + 0.5).long().clamp(0, width - 1)
+        row = torch.floor(y + 0.5).long().clamp(0, height - 1)
         return table[base + row * width + column].to(x.dtype)
     x0, y0 = torch.floor(x), torch.floor(y)
     fx, fy = (x - x0).unsqueeze(1), (y - y0).unsqueeze(1)
-    column0, row0 = x0.long().clamp(max=width - 1), y0.long().clamp(max=height - 1)
+    column0, row0 = x0.long().clamp(0, width - 1), y0.long().clamp(0, height - 1)
     column1 = (column0 + 1).clamp(max=width - 1)
     row1 = (row0 + 1).clamp(max=height - 1)
     read = lambda row, column: table[base + row * width + column].to(x.dtype)  # noqa: E731

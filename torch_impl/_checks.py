@@ -48,8 +48,14 @@ def positive_values(name: str, x: torch.Tensor) -> None:
 
 
 def finite_values(name: str, x: torch.Tensor) -> None:
-    """Raise ValueError if any element is NaN or infinite (eager only)."""
-    if not torch.compiler.is_compiling() and not bool(torch.isfinite(x).all()):
+    """Raise ValueError if any element is NaN or infinite (eager only).
+
+    One sum screens the array: NaN or infinity anywhere makes it non-finite, and only a non-finite
+    sum (bad data, or huge finite values that overflow it) pays for the elementwise test, which
+    took ~5x the sum's time on a 1280x720 colour (the checks run on every call)."""
+    if torch.compiler.is_compiling() or bool(torch.isfinite(x.sum(dtype=torch.promote_types(x.dtype, torch.float32)))):
+        return
+    if not bool(torch.isfinite(x).all()):
         raise ValueError(checks.nonfinite_message(name))
 
 

@@ -76,6 +76,7 @@ def gather_blur(
     checks.require_same_batch_and_size("color", color.shape, [("velocity", velocity.shape)])
     _checks.same_dtype_and_device("velocity", velocity, "color", color)
     _checks.finite_values("velocity", velocity)
+    _checks.finite_values("color", color)
     samples = checks.require_odd_int("samples", samples)
     sampling = checks.require_choice("sampling", sampling, SAMPLING_MODES)
     window = get_shutter(shutter)

@@ -46,7 +46,7 @@ class Pyramid:
         y = torch.where(y < 0, 0.0, torch.where(y > high_y, high_y, y))
         x0, y0 = torch.floor(x), torch.floor(y)
         fx, fy = (x - x0).unsqueeze(1), (y - y0).unsqueeze(1)
-        column0, row0 = torch.minimum(x0.long(), width - 1), torch.minimum(y0.long(), height - 1)
+        column0, row0 = torch.minimum(x0.long(), width - 1).clamp(min=0), torch.minimum(y0.long(), height - 1).clamp(min=0)  # (NaN: `_sampling`)
         column1 = torch.minimum(column0 + 1, width - 1)
         row1 = torch.minimum(row0 + 1, height - 1)
         read = lambda index: self._gather(index).to(x.dtype)  # noqa: E731
@@ -59,7 +59,7 @@ class Pyramid:
     def sample(self, x: Tensor, y: Tensor, lod: Tensor) -> Tensor:
         """(B, C, H', W') at image points x, y (B, H', W') and levels of detail lod (B, H', W'), in
         x's dtype."""
-        low = torch.floor(lod).long().clamp(max=self.count - 1)
+        low = torch.floor(lod).long().clamp(0, self.count - 1)
         high = (low + 1).clamp(max=self.count - 1)
         fraction = (lod - low.to(lod.dtype)).unsqueeze(1)
         below = self._read(low, x, y)

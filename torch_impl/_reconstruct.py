@@ -143,6 +143,7 @@ def reconstruct(
     _checks.finite_values("velocity", velocity)
     _checks.positive_values("depth", depth)
     _checks.finite_values("depth", depth)
+    _checks.finite_values("color", color)
     o = reconstruct_options(
         max_radius=max_radius,
         samples=samples,

@@ -22,6 +22,13 @@ def _clamp(x: Tensor, high: float) -> Tensor:
     return torch.where(x < 0, 0.0, torch.where(x > high, high, x))
 
 
+# The integer indices are clamped at both ends although the positions already are: a NaN position
+# (reachable under torch.compile, which skips the data checks) passes `_clamp` and converts to an
+# arbitrary integer. Eagerly torch.gather raised; inductor's generated code aborted the process
+# ("index out of bounds: 0 <= tmp50 < 272", issue 25). Clamped, the reads stay in the image (and a
+# bilinear read at a NaN position gives NaN).
+
+
 def _gather(flat: Tensor, row: Tensor, column: Tensor, width: int) -> Tensor:
     """flat (B, C, H*W) at integer (row, column) of shape (B, H', W') -> (B, C, H', W')."""
     batch, channels, _ = flat.shape
@@ -42,8 +49,8 @@ def sample(image: Tensor, x: Tensor, y: Tensor, mode: str) -> Tensor:
     x = _clamp(x, width - 1.0)
     y = _clamp(y, height - 1.0)
     if mode == "nearest":
-        column = torch.floor(x + 0.5).long().clamp(max=width - 1)
-        row = torch.floor(y + 0.5).long().clamp(max=height - 1)
+        column = torch.floor(x + 0.5).long().clamp(0, width - 1)
+        row = torch.floor(y + 0.5).long().clamp(0, height - 1)
         return _gather(flat, row, column, width).to(x.dtype)
     x0 = torch.floor(x)
     y0 = torch.floor(y)
@@ -51,7 +58,7 @@ def sample(image: Tensor, x: Tensor, y: Tensor, mode: str) -> Tensor:
     fy = (y - y0).unsqueeze(1)
     # Clamped again as integers: should positions be held in bfloat16, the border W - 1 itself
     # rounds up past the image beyond 256 px (float16 beyond 2048 px).
-    column0, row0 = x0.long().clamp(max=width - 1), y0.long().clamp(max=height - 1)
+    column0, row0 = x0.long().clamp(0, width - 1), y0.long().clamp(0, height - 1)
     column1 = (column0 + 1).clamp(max=width - 1)
     row1 = (row0 + 1).clamp(max=height - 1)
     # a + f (b - a), not (1 - f) a + f b: equal neighbours give exactly their value, so equal depths

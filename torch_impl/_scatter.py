@@ -47,8 +47,7 @@ _CHUNK_PIXEL_POINTS = 1 << 18
 
 def _finite_values(name: str, x: Tensor) -> None:
     """Raise ValueError if any element is NaN or infinite (eager only, as `_checks.positive_values`)."""
-    if not torch.compiler.is_compiling() and not bool(torch.all(torch.isfinite(x))):
-        raise ValueError(checks.nonfinite_message(name))
+    _checks.finite_values(name, x)
 
 
 def _extent(value: object, like: Tensor, name: str = "soft_z_extent") -> float | Tensor:
@@ -314,6 +313,9 @@ def bezier_scatter(
         extent = torch.log1p(extent) if isinstance(extent, Tensor) else math.log1p(extent)
     for name, value in given.items():
         _finite_values(name, value)
+    _finite_values("color", color)
+    if background is not None:
+        _finite_values("background", background)
 
     if fused is not False:
         from diffblur._fused import use_fused

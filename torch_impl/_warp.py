@@ -79,6 +79,7 @@ def accumulate_warps(
     else:
         offset_prev = _vector_field("offset_prev", offset_prev, color)
         offset_next = _vector_field("offset_next", offset_next, color)
+    _checks.finite_values("color", color)
     # Positions, offsets, weights and the sum in float32 for a half image (its dtype else).
     wide = position_dtype(color.dtype)
     velocity, offset_prev, offset_next = (None if v is None else v.to(wide) for v in (velocity, offset_prev, offset_next))
@@ -134,15 +135,29 @@ def warp_blend(
     """
     color = _checks.image("color", color)
     velocity = _vector_field("velocity", velocity, color)
+    _checks.finite_values("color", color)
     o = warp_blend_options(iterations=iterations, backward_scale=backward_scale, alpha=alpha, sampling=sampling)
     _, _, height, width = color.shape
     # Positions, offsets and the blended image in float32 for a half image (its dtype else).
     x, y = pixel_grid(height, width, color)
     vx, vy = velocity[:, 0].to(x.dtype), velocity[:, 1].to(x.dtype)
-    result = color.to(x.dtype)
-    for scale, a in o.schedule:
-        along = sample(result, x + scale * vx, y + scale * vy, o.sampling)
-        back = o.backward_scale * scale
-        against = sample(result, x - back * vx, y - back * vy, o.sampling)
+    passes = _warp_blend_passes if len(o.schedule) < 2 else _eager_warp_blend_passes
+    return passes(color.to(x.dtype), x, y, vx, vy, o.schedule, o.backward_scale, o.sampling).to(color.dtype)
+
+
+def _warp_blend_passes(result: Tensor, x: Tensor, y: Tensor, vx: Tensor, vy: Tensor, schedule: tuple, backward_scale: float, sampling: str) -> Tensor:
+    for scale, a in schedule:
+        along = sample(result, x + scale * vx, y + scale * vy, sampling)
+        back = backward_scale * scale
+        against = sample(result, x - back * vx, y - back * vy, sampling)
         result = (1.0 - a) * result + (0.5 * a) * (along + against)
-    return result.to(color.dtype)
+    return result
+
+
+#: Two or more passes run eagerly under torch.compile (a graph break; outside it the same function):
+#: inductor (torch 2.13, CPU) miscompiles the backward of bilinear reads from an image that was
+#: itself read that way. The output was right and the colour's gradient off by up to 0.76 (float64,
+#: 1x3x8x9, iterations=2; `scripts/measure_compile_vs_eager.py`); aot_eager was right (issue 25).
+_eager_warp_blend_passes = torch.compiler.disable(
+    _warp_blend_passes, reason="warp_blend with iterations >= 2: inductor miscompiles the gradient of its chained bilinear reads"
+)

@@ -1,0 +1,280 @@
+"""Compiled against eager, every op and module, both frameworks: the largest difference of the output
+and of every gradient, and the compile time.
+
+PyTorch: `torch.compile` (the default backend, inductor, `dynamic=False`) of forward and backward
+(the gradient of a fixed weighted sum of the output w.r.t. every floating input), against eager.
+JAX: `jax.jit`, `jax.vmap` (over a leading batch axis of 2) and `jax.checkpoint` of the same
+gradient, against eager JAX.
+
+Each PyTorch case runs in its own subprocess with a time limit: inductor compiles C++ (minutes per
+op on 2 cores), and a crash of its generated code ends the process; the table then says so instead
+of losing the sweep. Inputs: float64, (1, 3, 8, 9) (tiny, to bound the compile), seeded.
+
+    PYTHONPATH=. python scripts/measure_compile_vs_eager.py [--only NAME,...] [--limit 900] [--write]
+
+`--write` replaces the section "Compiled against eager" of BENCHMARKS.md with the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SHAPE = (1, 3, 8, 9)
+
+#: name -> (op name, inputs it takes, options). Inputs: c colour, v velocity, z depth, p/n offsets.
+CASES = {
+    "soft_depth_compare": ("soft_depth_compare", "zz", {}),
+    "cone": ("cone", "dz", {}),
+    "cylinder": ("cylinder", "dz", {}),
+    "velocity_from_motion": ("velocity_from_motion", "v", {}),
+    "tile_max": ("tile_max", "v", {}),
+    "neighbor_max": ("neighbor_max", "v", {}),
+    "gather_blur": ("gather_blur", "cv", {"samples": 5}),
+    "gather_blur adaptive": ("gather_blur", "cv", {"samples": 5, "adaptive": True}),
+    "reconstruct": ("reconstruct", "cvz", {"samples": 5, "max_radius": 4.0}),
+    "bezier_scatter": ("bezier_scatter", "czpn", {"samples": 5, "fill": "color"}),
+    "warp_blend iterations=1": ("warp_blend", "cv", {"iterations": 1}),
+    "warp_blend iterations=2": ("warp_blend", "cv", {"iterations": 2}),
+    "warp_blend iterations=3": ("warp_blend", "cv", {"iterations": 3}),
+    "accumulate_warps": ("accumulate_warps", "cv", {"instants": 4}),
+    "MotionBlur gather": ("MotionBlur", "cv", {"method": "gather", "samples": 5}),
+    "MotionBlur reconstruct": ("MotionBlur", "cvz", {"method": "reconstruct", "samples": 5, "max_radius": 4.0}),
+}
+
+
+def inputs(kinds: str) -> list[np.ndarray]:
+    rng = np.random.default_rng(0)
+    b, _, h, w = SHAPE
+    made = {
+        "c": lambda: rng.random(SHAPE),
+        "v": lambda: rng.normal(size=(b, 2, h, w)) * 2.0,
+        "z": lambda: rng.uniform(1.0, 2.0, size=(b, 1, h, w)),
+        "d": lambda: rng.uniform(0.0, 3.0, size=(b, 1, h, w)),
+        "p": lambda: rng.normal(size=(b, 2, h, w)) * 2.0,
+        "n": lambda: rng.normal(size=(b, 2, h, w)) * 2.0,
+    }
+    return [made[k]() for k in kinds]
+
+
+def call(ops, name: str, kinds: str, options: dict, arrays: list):
+    """The op on `arrays` (as `kinds` says), with float64 options where the module needs them."""
+    if name == "MotionBlur":
+        options = dict(options)
+        method = options.pop("method")
+        layer = ops.MotionBlur(method, **options)
+        return layer(*arrays)
+    if name in ("soft_depth_compare",):
+        return getattr(ops, name)(arrays[0], arrays[1] * 1.1, 0.1)
+    if name in ("cone", "cylinder"):
+        return getattr(ops, name)(arrays[0], arrays[1] + 0.5)
+    if name == "tile_max":
+        return ops.tile_max(arrays[0], 4)
+    if name == "neighbor_max":
+        return ops.neighbor_max(ops.tile_max(arrays[0], 4))
+    if name == "bezier_scatter":
+        color, depth, prev, nxt = arrays
+        return ops.bezier_scatter(color, depth, prev, nxt, **options)
+    return getattr(ops, name)(*arrays, **options)
+
+
+def labels(kinds: str) -> list[str]:
+    """The inputs' names in the table: their letters, numbered where one repeats (z1, z2)."""
+    return [f"{k}{kinds[:i].count(k) + 1}" if kinds.count(k) > 1 else k for i, k in enumerate(kinds)]
+
+
+def weights(shape) -> np.ndarray:
+    return np.random.default_rng(1).random(shape)
+
+
+# --------------------------------------------------------------------------------------- PyTorch
+
+
+def torch_case(case: str) -> dict:
+    """One case, in this process: eager and compiled output and gradients, their differences."""
+    import torch
+
+    import torch_impl
+
+    torch.set_num_threads(1)
+    name, kinds, options = CASES[case]
+    host = inputs(kinds)
+
+    def run(fn):
+        leaves = [torch.tensor(a, requires_grad=True) for a in host]
+        out = fn(*leaves)
+        loss = (out * torch.tensor(weights(tuple(out.shape)))).sum()
+        grads = torch.autograd.grad(loss, leaves, allow_unused=True)
+        return [out.detach().numpy()] + [np.zeros(a.shape) if g is None else g.numpy() for g, a in zip(grads, host)]
+
+    fn = lambda *arrays: call(torch_impl, name, kinds, options, list(arrays))  # noqa: E731
+    eager = run(fn)
+    torch._dynamo.reset()
+    compiled = torch.compile(fn, dynamic=False)
+    started = time.perf_counter()
+    got = run(compiled)
+    seconds = time.perf_counter() - started
+    return {
+        "output": float(np.max(np.abs(got[0] - eager[0]))),
+        "gradients": {k: float(np.max(np.abs(g - e))) for k, g, e in zip(labels(kinds), got[1:], eager[1:])},
+        "compile_s": round(seconds, 1),
+    }
+
+
+def torch_sweep(cases: list[str], limit: int) -> dict:
+    results = {}
+    for case in cases:
+        started = time.perf_counter()
+        try:
+            run = subprocess.run(
+                [sys.executable, __file__, "--torch-case", case],
+                cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=limit,
+            )
+            if run.returncode == 0:
+                results[case] = json.loads(run.stdout.strip().splitlines()[-1])
+            else:
+                tail = [line for line in run.stderr.strip().splitlines() if line.strip()][-1:] or ["(no message)"]
+                results[case] = {"error": f"exit {run.returncode}: {tail[0][:160]}"}
+        except subprocess.TimeoutExpired:
+            results[case] = {"error": f"compile not done in {limit} s"}
+        print(f"torch {case}: {results[case]} ({time.perf_counter() - started:.0f} s)", file=sys.stderr, flush=True)
+    return results
+
+
+# ------------------------------------------------------------------------------------------- JAX
+
+
+def jax_sweep(cases: list[str]) -> dict:
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+
+    import jax_impl
+
+    results = {}
+    for case in cases:
+        name, kinds, options = CASES[case]
+        host = [jnp.asarray(a) for a in inputs(kinds)]
+        out_shape = jax.eval_shape(lambda *a: call(jax_impl, name, kinds, options, list(a)), *host).shape
+        w = jnp.asarray(weights(out_shape))
+
+        def value_and_grads(*arrays):
+            def loss(*a):
+                out = call(jax_impl, name, kinds, options, list(a))
+                return jnp.sum(out * w), out
+
+            (_, out), grads = jax.value_and_grad(loss, argnums=tuple(range(len(arrays))), has_aux=True)(*arrays)
+            return [out, *grads]
+
+        def diff(a, b):
+            return max(float(jnp.max(jnp.abs(x - y))) for x, y in zip(a, b))
+
+        try:
+            eager = value_and_grads(*host)
+            started = time.perf_counter()
+            jitted = jax.jit(value_and_grads)
+            jax.block_until_ready(jitted(*host))
+            compile_s = time.perf_counter() - started
+            jit_diff = diff(jitted(*host), eager)
+            batched = jax.vmap(value_and_grads)(*(jnp.stack([a, a]) for a in host))
+            vmap_diff = max(diff([x[i] for x in batched], eager) for i in range(2))
+            checkpointed = jax.checkpoint(value_and_grads)(*host)
+            results[case] = {
+                "jit": jit_diff,
+                "vmap": vmap_diff,
+                "checkpoint": diff(checkpointed, eager),
+                "compile_s": round(compile_s, 1),
+            }
+        except Exception as error:  # noqa: BLE001 - reported in the table
+            results[case] = {"error": f"{type(error).__name__}: {str(error).splitlines()[0][:160]}"}
+        print(f"jax {case}: {results[case]}", file=sys.stderr, flush=True)
+    return results
+
+
+# ----------------------------------------------------------------------------------------- table
+
+
+def table(torch_results: dict, jax_results: dict, header: str) -> str:
+    lines = [
+        "## Compiled against eager",
+        "",
+        header,
+        "",
+        "| op | torch.compile: output | torch.compile: gradients (largest, by input) | torch.compile s | jax.jit | jax.vmap | jax.checkpoint | jax.jit compile s |",
+        "|---|---:|---|---:|---:|---:|---:|---:|",
+    ]
+    for case in CASES:
+        t, j = torch_results.get(case), jax_results.get(case)
+        if t is None:
+            torch_cells = ["not run", "", ""]
+        elif "error" in t:
+            torch_cells = [t["error"], "", ""]
+        else:
+            grads = ", ".join(f"{k} {v:.1e}" for k, v in t["gradients"].items())
+            torch_cells = [f"{t['output']:.1e}", grads, f"{t['compile_s']}"]
+        if j is None:
+            jax_cells = ["not run", "", "", ""]
+        elif "error" in j:
+            jax_cells = [j["error"], "", "", ""]
+        else:
+            jax_cells = [f"{j['jit']:.1e}", f"{j['vmap']:.1e}", f"{j['checkpoint']:.1e}", f"{j['compile_s']}"]
+        lines.append("| " + " | ".join([case, *torch_cells, *jax_cells]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def write_section(text: str) -> None:
+    path = ROOT / "BENCHMARKS.md"
+    current = path.read_text()
+    start = current.find("## Compiled against eager")
+    if start >= 0:
+        end = current.find("\n## ", start + 1)
+        current = current[:start] + (current[end + 1:] if end >= 0 else "")
+    path.write_text(current.rstrip() + "\n\n" + text)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", default="", help="comma-separated case names (default: all)")
+    parser.add_argument("--limit", type=int, default=900, help="seconds one PyTorch case may take")
+    parser.add_argument("--frameworks", default="torch,jax")
+    parser.add_argument("--write", action="store_true", help="write the table into BENCHMARKS.md")
+    parser.add_argument("--torch-case", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.torch_case:
+        print(json.dumps(torch_case(args.torch_case)))
+        return
+    cases = [c for c in CASES if not args.only or c in args.only.split(",")]
+    frameworks = args.frameworks.split(",")
+    jax_results = jax_sweep(cases) if "jax" in frameworks else {}
+    torch_results = torch_sweep(cases, args.limit) if "torch" in frameworks else {}
+    import torch
+
+    header = (
+        f"Generated by `PYTHONPATH=. python scripts/measure_compile_vs_eager.py --write`; "
+        f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, {platform.processor() or platform.machine()}, "
+        f"{os.cpu_count()} cores, load average before {os.getloadavg()[0]:.1f}, torch {torch.__version__}. "
+        f"Inputs float64 {SHAPE}, seeded; largest absolute difference from eager of the output and of the gradient of a "
+        "fixed weighted sum of it w.r.t. each floating input (c colour, v velocity, z depth, d distance, p/n offsets). "
+        "PyTorch: `torch.compile(dynamic=False)`, default backend (inductor), each case in its own process, compile "
+        "time = the first forward+backward. JAX: the same gradient eager against `jax.jit`, `jax.vmap` (batch of 2) "
+        "and `jax.checkpoint`."
+    )
+    text = table(torch_results, jax_results, header)
+    print(text)
+    if args.write:
+        write_section(text)
+
+
+if __name__ == "__main__":
+    main()

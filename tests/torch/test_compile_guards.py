@@ -1,0 +1,77 @@
+"""Guards against inductor's wrong code (issue 25), checked without paying for inductor's compile.
+
+`warp_blend` with iterations >= 2 under `torch.compile`: inductor (torch 2.13, CPU) returned the
+right output but a colour gradient off by up to 0.76 (float64, 1x3x8x9). Its passes now run eagerly
+(a graph break); the test compiles with a backend that records each graph and runs it as traced
+(`aot_eager`'s numbers, so the comparison is exact), and checks that no gather reaches a compiled
+graph, and that outputs and gradients equal eager's. The inductor comparison itself, minutes of
+compile per op, is `scripts/measure_compile_vs_eager.py` (its table is in BENCHMARKS.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+import torch_impl
+
+
+def _inputs():
+    rng = np.random.default_rng(0)
+    return torch.tensor(rng.random((1, 3, 8, 9)), requires_grad=True), torch.tensor(rng.normal(size=(1, 2, 8, 9)) * 2.0, requires_grad=True)
+
+
+def _value_and_grads(fn):
+    color, velocity = _inputs()
+    out = fn(color, velocity)
+    weights = torch.tensor(np.random.default_rng(1).random(tuple(out.shape)))
+    grads = torch.autograd.grad((out * weights).sum(), (color, velocity))
+    return [out.detach(), *grads]
+
+
+@pytest.mark.parametrize("iterations", [1, 2, 3])
+def test_warp_blend_chained_reads_stay_out_of_compiled_graphs(iterations):
+    graphs = []
+
+    def recording(graph_module, example_inputs):
+        graphs.append(graph_module)
+        return graph_module.forward
+
+    fn = lambda color, velocity: torch_impl.warp_blend(color, velocity, iterations=iterations)  # noqa: E731
+    torch._dynamo.reset()
+    compiled = _value_and_grads(torch.compile(fn, backend=recording, dynamic=False))
+    eager = _value_and_grads(fn)
+    for got, want in zip(compiled, eager):
+        assert torch.equal(got, want)
+    gathers = sum(node.target is torch.gather for graph in graphs for node in graph.graph.nodes)
+    if iterations == 1:  # one pass has no chained reads: it compiles whole
+        assert gathers == 8
+    else:
+        assert gathers == 0
+
+
+# A NaN velocity under torch.compile (which skips the data checks) made NaN tap positions, whose
+# integer indices fell outside the image: eager aten raised, inductor's generated C++ aborted the
+# process ("index out of bounds: 0 <= tmp50 < 272" on a 16x17 image). The indices are now clamped.
+# The test skips the checks as torch.compile does and runs eagerly (an inductor compile is ~20 s of
+# CPU; `scripts/measure_compile_vs_eager.py` has the compiled case): eager aten raised there too.
+NAN_CALLS = {
+    "bilinear": lambda c, v: torch_impl.gather_blur(c, v, samples=3, fused=False),
+    "nearest": lambda c, v: torch_impl.gather_blur(c, v, samples=3, sampling="nearest", fused=False),
+    "adaptive": lambda c, v: torch_impl.gather_blur(c, v, samples=3, adaptive=True, fused=False),
+    "pyramid": lambda c, v: torch_impl.gather_blur(c, v, samples=3, pyramid=True, fused=False),
+}
+
+
+@pytest.mark.parametrize("op", list(NAN_CALLS))
+def test_nan_velocity_with_the_checks_skipped_reads_inside_the_image(op, monkeypatch):
+    from torch_impl import _checks
+
+    monkeypatch.setattr(_checks, "finite_values", lambda name, x: None)  # as under torch.compile
+    color = torch.rand(1, 3, 16, 17, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    velocity = torch.ones(1, 2, 16, 17, dtype=torch.float64)
+    velocity[0, 0, 5, 6] = float("nan")  # x only: with both, the wrapped index of NaN rows and columns happened to be 0
+    out = NAN_CALLS[op](color, velocity)
+    assert out.shape == color.shape
+    assert torch.isfinite(out[..., :3, :]).all()  # rows the NaN pixel's taps cannot reach stay finite
