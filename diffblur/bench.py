@@ -748,16 +748,31 @@ def _plot(path: str, results: dict) -> None:
     fig.savefig(path, dpi=80)
 
 
+#: The headings of the sections this bench writes (`_markdown`); the rest of BENCHMARKS.md is other
+#: commands' (the held-out recovery, the physically rendered scenes, compile against eager, soak).
+OWN_HEADINGS = ("## Targets", "## Scene `")
+
+
+def other_sections(path: str) -> str:
+    """Everything of the file at `path` from the first section this bench does not write (a `## `
+    heading not in OWN_HEADINGS, or a `<!-- ` marker) to the end: what a new run keeps."""
+    if not os.path.exists(path):
+        return ""
+    lines = open(path).read().splitlines()
+    for i, line in enumerate(lines):
+        if line.startswith("<!-- ") or (line.startswith("## ") and not line.startswith(OWN_HEADINGS)):
+            return "\n".join(lines[i:]) + "\n"
+    return ""
+
+
 def _write(out_dir, results: dict) -> None:
     out_dir = os.fspath(out_dir)
     docs = os.path.join(out_dir, "docs")
     os.makedirs(docs, exist_ok=True)
     with open(os.path.join(docs, "benchmarks.json"), "w") as f:
         json.dump(results, f, indent=1, allow_nan=True)
-    from diffblur.mitsuba_bench import kept_section
-
     path = os.path.join(out_dir, "BENCHMARKS.md")
-    renderer = kept_section(path)  # the Mitsuba scenes' section has its own command: keep it
+    others = other_sections(path)
     with open(path, "w") as f:
-        f.write(_markdown(results) + "\n" + ("" if renderer is None else "\n" + renderer + "\n"))
+        f.write(_markdown(results) + "\n" + ("" if not others else "\n" + others))
     _plot(os.path.join(docs, "pareto.png"), results)

@@ -77,3 +77,15 @@ def test_timed_calls_take_turns():
     times = median_ms_each([lambda: calls.append("forward"), lambda: calls.append("backward")], repeats=3, warmup=1)
     assert calls == ["forward", "backward"] * 4
     assert len(times) == 2 and all(t >= 0 for t in times)
+
+
+def test_a_new_run_keeps_the_other_commands_sections(quick, tmp_path):
+    """BENCHMARKS.md also holds sections other commands write (held-out recovery, renderer scenes,
+    compile against eager, soak): a new bench run replaces its own and keeps theirs, in order."""
+    _, results = quick
+    path = tmp_path / "BENCHMARKS.md"
+    others = "<!-- heldout:after:start -->\n## Held-out recovery (after)\nrows\n<!-- heldout:after:end -->\n\n## Soak\nfigures\n"
+    path.write_text("# Benchmarks\n\n## Targets (old)\nold\n\n## Scene `uniform` (8x8)\nold rows\n\n" + others)
+    bench._write(tmp_path, results)
+    text = path.read_text()
+    assert text.endswith(others) and "old rows" not in text and "## Scene `uniform`" in text
