@@ -765,6 +765,21 @@ def other_sections(path: str) -> str:
     return ""
 
 
+def replace_section(path: str, heading: str, text: str) -> None:
+    """Put `text`, a section that starts with the line `heading` ("## ..."), into the markdown file at
+    `path`: in place of the section under that heading (to the next "## "), else at the end. For the
+    measurement scripts that keep a section of BENCHMARKS.md."""
+    current = open(path).read() if os.path.exists(path) else ""
+    start = current.find(heading)
+    if start < 0:
+        new = current.rstrip() + "\n\n" + text
+    else:
+        end = current.find("\n## ", start + 1)
+        new = current[:start] + text.rstrip() + "\n" + ("" if end < 0 else "\n" + current[end + 1 :])
+    with open(path, "w") as f:
+        f.write(new)
+
+
 def _write(out_dir, results: dict) -> None:
     out_dir = os.fspath(out_dir)
     docs = os.path.join(out_dir, "docs")

@@ -234,13 +234,9 @@ def table(torch_results: dict, jax_results: dict, header: str) -> str:
 
 
 def write_section(text: str) -> None:
-    path = ROOT / "BENCHMARKS.md"
-    current = path.read_text()
-    start = current.find("## Compiled against eager")
-    if start >= 0:
-        end = current.find("\n## ", start + 1)
-        current = current[:start] + (current[end + 1:] if end >= 0 else "")
-    path.write_text(current.rstrip() + "\n\n" + text)
+    from diffblur.bench import replace_section
+
+    replace_section(str(ROOT / "BENCHMARKS.md"), "## Compiled against eager", text)
 
 
 def main() -> None:

@@ -124,13 +124,9 @@ def soak(framework: str, op: str, calls: int, size: int, settle: int) -> dict:
 
 
 def write_section(text: str) -> None:
-    path = ROOT / "BENCHMARKS.md"
-    current = path.read_text()
-    start = current.find("## Soak")
-    if start >= 0:
-        end = current.find("\n## ", start + 1)
-        current = current[:start] + (current[end + 1:] if end >= 0 else "")
-    path.write_text(current.rstrip() + "\n\n" + text)
+    from diffblur.bench import replace_section
+
+    replace_section(str(ROOT / "BENCHMARKS.md"), "## Soak", text)
 
 
 def main() -> None:

@@ -89,3 +89,12 @@ def test_a_new_run_keeps_the_other_commands_sections(quick, tmp_path):
     bench._write(tmp_path, results)
     text = path.read_text()
     assert text.endswith(others) and "old rows" not in text and "## Scene `uniform`" in text
+
+
+def test_a_measurement_script_replaces_its_section_in_place(tmp_path):
+    path = tmp_path / "BENCHMARKS.md"
+    path.write_text("# Benchmarks\n\n## Soak\n\nold\n\n## Later\n\nkept\n")
+    bench.replace_section(str(path), "## Soak", "## Soak\n\nnew\n")
+    assert path.read_text() == "# Benchmarks\n\n## Soak\n\nnew\n\n## Later\n\nkept\n"
+    bench.replace_section(str(path), "## Compiled against eager", "## Compiled against eager\n\nrows\n")
+    assert path.read_text().endswith("kept\n\n## Compiled against eager\n\nrows\n")
