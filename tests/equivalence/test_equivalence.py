@@ -258,23 +258,13 @@ def test_torch_compile_captures_every_op_whole():
 
 
 def test_torch_compile_inductor_matches_eager():
-    """The generated kernels (Inductor, the default backend) for the primitives, the gather and
-    the reconstruction filter. Inductor's C++ build dominates the suite's time (about a minute for
-    the filter on two cores), so it compiles one graph with the smallest filter (S = 3)."""
-    small_filter = Case(
-        "reconstruct_inductor",
-        lambda rng: {
-            "color": rng.random((1, 3, 6, 7)),
-            "velocity": rng.normal(size=(1, 2, 6, 7)) * 2.0,
-            "depth": rng.uniform(1.0, 1.2, size=(1, 1, 6, 7)),
-        },
-        None,
-        lambda **a: torch_impl.reconstruct(**a, samples=3, max_radius=3.0),
-        None,
-        differentiable=("color", "velocity", "depth"),
-    )
+    """The generated kernels (Inductor, the default backend) for the primitives and the gather.
+    Inductor's C++ build of even a 3-tap reconstruct takes about 170 s on two cores with a cold
+    cache (as in CI), so the filter's compiled-against-eager check under Inductor is in
+    `scripts/measure_compile_vs_eager.py` (BENCHMARKS.md); here it runs under aot_eager
+    (`test_torch_compile_captures_every_op_whole`)."""
     primitives = [CASES_BY_NAME[name] for name in PRIMITIVE_CASES]
-    _compiled_against_eager([*primitives, CASES_BY_NAME["gather_blur_bilinear"], small_filter], "inductor")
+    _compiled_against_eager([*primitives, CASES_BY_NAME["gather_blur_bilinear"]], "inductor")
 
 
 @pytest.mark.parametrize("case", CASES, ids=case_ids)
