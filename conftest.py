@@ -7,10 +7,13 @@ themselves), and x64 enabled so the float64 checks are float64; float32 tests as
 import os
 
 os.environ.setdefault("MPLBACKEND", "Agg")
-# XLA's backend optimisations cost compile time the tests do not need (measured: a quarter of the
-# CPU time of the warp_blend equivalence tests); results stay within every tolerance.
-if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0").strip()
+# XLA's CPU compiler spends most of the suite's JAX time on code the tests run once: its backend
+# optimisations (a quarter of the warp_blend equivalence tests' CPU time) and its fusion emitters
+# (the older emitters compile a reconstruct's check_grads in a third of the time); results stay
+# within every tolerance. A user's own XLA_FLAGS for either setting win.
+for _flag in ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false"):
+    if _flag.split("=")[0] not in os.environ.get("XLA_FLAGS", ""):
+        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _flag).strip()
 
 try:
     import jax

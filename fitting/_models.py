@@ -272,7 +272,8 @@ def layered_scatter(ctx: Context, motion: Any, *, hidden_share: bool = False) ->
     layer moving over a still one this is the plain scatter (the still layer's coverage is its mask).
 
     Returns (n, C, h, w); with hidden_share, (n, 1, h, w) the share of each pixel's exposure that
-    shows what the sharp frame hides (the fill, or a layer where a nearer one covered it at t = 0).
+    shows what the sharp frame hides (the fill, or a layer where a nearer one covered it at t = 0),
+    plus where two layers each cover the pixel for part of the exposure (the composite's guess).
     """
     be, o = ctx.be, ctx.options
     stack: LayerStack = ctx.extras["layers"]
@@ -286,13 +287,21 @@ def layered_scatter(ctx: Context, motion: Any, *, hidden_share: bool = False) ->
     splatted = be.ops.bezier_scatter(sources, depth, -motion, motion, degree=1, samples=o["scatter_samples"], shutter=shutter_of(ctx, o["scatter_samples"]), background=zero)
     splatted = splatted.reshape(n, layers, channels + 2, ctx.height, ctx.width)
     out, through, hidden = 0.0, 1.0, 0.0
+    partial_sum, partial_squares = 0.0, 0.0
     for k in range(layers):
         out = out + through * splatted[:, k, :channels]
         if k < layers - 1:
             hidden = hidden + through * splatted[:, k, channels + 1 : channels + 2]
-        through = through * (1.0 - splatted[:, k, channels : channels + 1])
+        coverage = splatted[:, k, channels : channels + 1]
+        through = through * (1.0 - coverage)
+        partial = 4.0 * coverage * (1.0 - coverage)
+        partial_sum, partial_squares = partial_sum + partial, partial_squares + partial * partial
     if hidden_share:
-        return hidden + through
+        # The composite is exact where at most one layer covers a pixel for part of the exposure
+        # (a still layer covers it all or none of it); where two do, it assumes their coverings
+        # independent in time, which crossing objects are not. Their product counts as hidden.
+        overlap = 0.5 * (partial_sum * partial_sum - partial_squares)
+        return hidden + through + overlap
     return out + through * stack.fill
 
 
