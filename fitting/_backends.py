@@ -60,7 +60,7 @@ class TorchAdapter:
         with self.torch.no_grad():
             return f(*args)
 
-    def compiled(self, f: Callable[[Any], Any]) -> Callable[[Any], Any]:
+    def compiled(self, f: Callable[..., Any]) -> Callable[..., Any]:
         """f itself: PyTorch runs eagerly."""
         return f
 
@@ -130,11 +130,11 @@ class JaxAdapter:
         family that made the cheap models' JAX fits twice as slow)."""
         return f(*args)
 
-    def compiled(self, f: Callable[[Any], Any]) -> Callable[[Any], Any]:
-        """f under eqx.filter_jit (compiled once per input shape)."""
-        import equinox as eqx
-
-        return eqx.filter_jit(f)
+    def compiled(self, f: Callable[..., Any]) -> Callable[..., Any]:
+        """f under eqx.filter_jit, one wrapper per function (compiled once per static part and shapes
+        of its arguments): for a small piece a fit calls many times, where dispatching its ops one
+        by one costs more than compiling it."""
+        return _compiled(f, gradient=False)
 
 
 #: eqx.filter_jit of each function `JaxAdapter.value_and_grad` was given, by function.
