@@ -391,7 +391,7 @@ def _terms(kind: str, degree: int, given: dict[str, Array]) -> tuple:
     return _bezier_terms(degree, given["offset_prev"], given["offset_next"], given.get("offset_mid_prev"))
 
 
-def _splat_sums(color: Array, depth: Array, terms: tuple, masses: Array, extent: Array, moving: Array, x: Array, y: Array, *, kind: str, paper: bool) -> Array:
+def _splat_sums(color: Array, depth: Array, terms: tuple, masses: Array, extent: Array, moving: Array, x: Array, y: Array, *, kind: str, paper: bool, passes: int = 1) -> Array:
     """The sums (B, C + 1, H, W) of omega * [color, 1] over every moving pixel's points, by
     jax.numpy ops (one scatter-add per chunk of points), cropped to the image."""
     batch, channels, height, width = color.shape
@@ -400,7 +400,8 @@ def _splat_sums(color: Array, depth: Array, terms: tuple, masses: Array, extent:
     # Rows of [color, 1] per source pixel: one scatter-add per point sums colour and weight together.
     rows = jnp.concatenate([color, jnp.ones_like(depth)], axis=1).transpose(0, 2, 3, 1).reshape(-1, channels + 1).astype(wide)
     times = jnp.asarray(point_times(samples), dtype=wide)
-    chunk = max(1, _CHUNK_PIXEL_POINTS // rows.shape[0])
+    # composite="layers" runs `passes` (3) of these in one call: they share the chunk budget.
+    chunk = max(1, _CHUNK_PIXEL_POINTS // (passes * rows.shape[0]))
     splat = functools.partial(_splat, paper, kind)
     fixed = (terms, x[None], y[None], rows, depth, extent, moving)
     if chunk >= samples:
@@ -450,7 +451,7 @@ def _scatter(
             from jax_impl._fused_scatter import fused_splat
 
             return fused_splat(color, depth, kind, terms, masses, extent, moving, paper)
-        return _splat_sums(color, depth, terms, masses, extent, moving, x, y, kind=kind, paper=paper)
+        return _splat_sums(color, depth, terms, masses, extent, moving, x, y, kind=kind, paper=paper, passes=3 if layers and not paper else 1)
 
     def split(accumulated):
         # alpha copied per channel rather than broadcast: the gradient of a broadcast over the channel

@@ -384,7 +384,7 @@ def _terms(kind: str, degree: int, given: dict[str, Tensor]) -> tuple:
 
 
 def _splat_sums(
-    color: Tensor, depth: Tensor, terms: tuple, masses: Tensor, extent: float | Tensor, moving: Tensor, x: Tensor, y: Tensor, *, kind: str, paper: bool
+    color: Tensor, depth: Tensor, terms: tuple, masses: Tensor, extent: float | Tensor, moving: Tensor, x: Tensor, y: Tensor, *, kind: str, paper: bool, passes: int = 1
 ) -> Tensor:
     """The sums (B, C + 1, H, W) of omega * [color, 1] over every moving pixel's points, by tensor
     ops (one scatter-add per chunk of points), cropped to the image."""
@@ -394,7 +394,8 @@ def _splat_sums(
     # Rows of [color, 1] per source pixel: one scatter-add per point sums colour and weight together.
     rows = torch.cat([color, torch.ones_like(depth)], dim=1).permute(0, 2, 3, 1).reshape(-1, channels + 1)
     times = torch.as_tensor(point_times(samples), dtype=wide, device=color.device)
-    chunk = max(1, _CHUNK_PIXEL_POINTS // rows.shape[0])
+    # composite="layers" runs `passes` (3) of these in one call: they share the chunk budget.
+    chunk = max(1, _CHUNK_PIXEL_POINTS // (passes * rows.shape[0]))
     # Under torch.compile the compiler chooses what the backward keeps.
     recompute = chunk < samples and torch.is_grad_enabled() and not torch.compiler.is_compiling()
     accumulated = torch.zeros(batch * (height + 2) * (width + 2), channels + 1, dtype=wide, device=color.device)
@@ -438,7 +439,7 @@ def _scatter(
             from torch_impl._fused_scatter import fused_splat
 
             return fused_splat(color, depth, kind, terms, masses, extent, moving, paper)
-        return _splat_sums(color, depth, terms, masses, extent, moving, x, y, kind=kind, paper=paper)
+        return _splat_sums(color, depth, terms, masses, extent, moving, x, y, kind=kind, paper=paper, passes=3 if layers and not paper else 1)
 
     accumulated = sums(depth)
     splatted, alpha = accumulated[:, :channels], accumulated[:, channels:]
