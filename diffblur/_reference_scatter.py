@@ -13,7 +13,9 @@ import numpy as np
 
 from diffblur import checks
 from diffblur._scatter_options import (
+    COMPOSITES,
     DEFAULT_BACKGROUND_WEIGHT,
+    DEFAULT_COMPOSITE,
     DEFAULT_FILL,
     DEFAULT_MAX_SAMPLES,
     DEFAULT_NORMALIZATION,
@@ -167,6 +169,7 @@ def bezier_scatter(
     background_weight: float = DEFAULT_BACKGROUND_WEIGHT,
     soft_z_extent: float | np.ndarray | None = None,
     relative_z_extent: float | np.ndarray = DEFAULT_RELATIVE_Z_EXTENT,
+    composite: str = DEFAULT_COMPOSITE,
 ) -> np.ndarray:
     """Seed 003's scatter: every moving pixel splats its colour along its path over the exposure.
 
@@ -183,6 +186,11 @@ def bezier_scatter(
 
         coverage: (A + max(1 - alpha, 0) fill) / max(alpha, 1)
         paper:    (A + w_b fill) / (alpha + w_b)
+
+    With "coverage" and composite="layers" (the default) a moving pixel instead composites, front to
+    back by the same over (A + max(1 - alpha, 0) behind) / max(alpha, 1), three sums of its splats
+    split by the depth test: from sources nearer than the band in front, level (within the band),
+    from behind it; then the fill. composite="sum" is the sum above for every pixel (seed 003).
     """
     path = resolve_path(
         degree,
@@ -198,6 +206,7 @@ def bezier_scatter(
     batch, channels, height, width = checks.require_image("color", color.shape)
     checks.require_image("depth", depth.shape, channels=DEPTH_CHANNELS)
     fill = checks.require_choice("fill", fill, FILLS)
+    composite = checks.require_choice("composite", composite, COMPOSITES)
     relative, extent = checks.depth_band(soft_z_extent, relative_z_extent)
     extent = float(extent)
     if relative:  # the band relative to depth: compare log depths (`diffblur.checks.depth_band`)
@@ -238,6 +247,10 @@ def bezier_scatter(
 
     accumulated = np.zeros_like(color)
     alpha = np.zeros((batch, 1, height, width), dtype=color.dtype)
+    # composite="layers": the splats from sources nearer than the band in front (near) and every
+    # splat regardless of depth (every), besides those the depth test passes (accumulated, alpha).
+    near_accumulated, near_alpha = np.zeros_like(color), np.zeros_like(alpha)
+    every_accumulated, every_alpha = np.zeros_like(color), np.zeros_like(alpha)
     moving_pixels = np.zeros((batch, 1, height, width), dtype=bool)
     for b in range(batch):
         for i in range(height):
@@ -254,13 +267,43 @@ def bezier_scatter(
                         omega = bilinear * test * weight
                         accumulated[b, :, row, column] += omega * color[b, :, i, j]
                         alpha[b, 0, row, column] += omega
+                        # nearer by more than the band: the depth test with the roles swapped fails
+                        near = (1.0 - _soft_in_front(depth[b, 0, i, j], depth[b, 0, row, column], extent)) * bilinear * weight
+                        near_accumulated[b, :, row, column] += near * color[b, :, i, j]
+                        near_alpha[b, 0, row, column] += near
+                        every_accumulated[b, :, row, column] += bilinear * weight * color[b, :, i, j]
+                        every_alpha[b, 0, row, column] += bilinear * weight
 
     if background is None and fill == "still":
         warn_without_still(moving_pixels[:, 0], stacklevel=2)
+    unknown_behind = background is None and fill == "still"
     if background is None:
         background = color if fill == "color" else still_fill(color, (~moving_pixels).astype(color.dtype))
     fill = np.where(moving_pixels, background, color)
-    if normalization == "coverage":
-        uncovered = np.maximum(1.0 - alpha, 0.0)
-        return (accumulated + uncovered * fill) / np.maximum(alpha, 1.0)
-    return (accumulated + background_weight * fill) / (alpha + background_weight)
+    if normalization == "paper":
+        return (accumulated + background_weight * fill) / (alpha + background_weight)
+    summed = _over(accumulated, alpha, fill)
+    if composite == "sum":
+        return summed
+    # "layers": a moving pixel composites, front to back, the splats from nearer sources, those level
+    # with it (within the band), those from behind it, then the fill; a still pixel is its own level
+    # layer, which hides what passes behind it: the summed result.
+    level_accumulated, level_alpha = accumulated - near_accumulated, alpha - near_alpha
+    behind_accumulated, behind_alpha = every_accumulated - accumulated, every_alpha - alpha
+    back = _over(behind_accumulated, behind_alpha, fill)
+    if unknown_behind:
+        # fill="still" in an image without a still pixel (its fill is its own colour): what passes
+        # behind a moving pixel is the estimate of what it uncovers, counting as fully as the fill
+        # once it weighs one point's mean mass, 1 / samples.
+        mass = 1.0 / samples
+        for b in range(batch):
+            if moving_pixels[b].all():
+                back[b] = (behind_accumulated[b] + mass * fill[b]) / (behind_alpha[b] + mass)
+    layered = _over(near_accumulated, near_alpha, _over(level_accumulated, level_alpha, back))
+    return np.where(moving_pixels, layered, summed)
+
+
+def _over(accumulated: np.ndarray, alpha: np.ndarray, behind: np.ndarray) -> np.ndarray:
+    """A layer of splats over what is behind it, by coverage: A + (1 - alpha) behind where alpha <= 1,
+    A / alpha where alpha > 1."""
+    return (accumulated + np.maximum(1.0 - alpha, 0.0) * behind) / np.maximum(alpha, 1.0)

@@ -34,6 +34,8 @@ from diffblur.shutters import ShutterWindow
 from diffblur.taps import stratum_weights
 
 __all__ = [
+    "COMPOSITES",
+    "DEFAULT_COMPOSITE",
     "DEFAULT_BACKGROUND_WEIGHT",
     "DEFAULT_MAX_SAMPLES",
     "DEFAULT_NORMALIZATION",
@@ -75,7 +77,10 @@ DEFAULT_NORMALIZATION = "coverage"
 #: given. "still": an estimate of the scene behind it from the pixels that do not move, filled in by
 #: push-pull (Gortler et al. 1996: sums of colour and weight pooled 2 x 2 down to one pixel, then each
 #: level's mean where it has weight, blended with the coarser level bilinearly upsampled where it has
-#: less than one pixel's weight); a pixel's own colour where the image has no still pixel.
+#: less than one pixel's weight). Where the image has no still pixel (a moving camera), with
+#: composite="layers": the splats that pass behind the pixel, weighed against its own colour as
+#: (A_behind + m color) / (alpha_behind + m), m = 1 / samples (one point's mean mass), so that
+#: wherever something passes behind it, that is what it uncovers; with "sum", its own colour.
 #: "color": the moving pixel's own colour (it fills its uncovered time with itself).
 FILLS = ("still", "color")
 #: Measured (box shutter, degree 2, coverage normalisation, PSNR against the accumulation ground
@@ -84,6 +89,15 @@ FILLS = ("still", "color")
 #: (128 x 128), SSIM higher on each; equal on pan, which has no still pixel. It removes 55 to 89 % of
 #: the squared error that the true background removes.
 DEFAULT_FILL = "still"
+#: How normalization="coverage" composites a moving pixel's splats. "layers": front to back, each
+#: layer over what is behind it by its coverage (A + (1 - alpha) behind where alpha <= 1, A / alpha
+#: where alpha > 1): the splats from sources nearer than the depth band in front, those level with
+#: the pixel (within the band), those from behind it (which the depth test of seed 003 drops: they
+#: are what the pixel shows once its own surface has moved off it), then the fill. "sum": seed 003's
+#: one sum of the splats the depth test passes (no depth write), over the fill. Still pixels are their
+#: own level layer, in front of what passes behind them, and keep the sum in both.
+COMPOSITES = ("layers", "sum")
+DEFAULT_COMPOSITE = "layers"
 #: Bezier degrees: 1 (segment), 2 (seed 003's quadratic), 3 (seed 003 sec. 5.1's cubic).
 DEGREES = (1, 2, 3)
 #: The project's one default shutter (`diffblur.conventions.DEFAULT_SHUTTER`, the box), as the other
@@ -274,8 +288,8 @@ _warned_without_still = False
 
 
 def warn_without_still(moving: np.ndarray, stacklevel: int) -> None:
-    """Warn that fill="still" found no still pixel in an image of the batch (it then fills as
-    fill="color"); moving is the (B, H, W) `moving_mask` as NumPy. Once per process: a fit calls
+    """Warn that fill="still" found no still pixel in an image of the batch (it then fills with what
+    passes behind each pixel, weighed against its own colour, or as fill="color"); moving is the (B, H, W) `moving_mask` as NumPy. Once per process: a fit calls
     the scatter hundreds of times on the same images (`fitting`'s global model moves every pixel),
     and one warning says what there is to say."""
     global _warned_without_still
@@ -296,8 +310,8 @@ def no_still_message(moving: np.ndarray) -> str | None:
     return (
         f"bezier_scatter(fill='still') found no still pixel (one that moves at most "
         f"STILL_SPEED={conventions.STILL_SPEED} px) in image(s) {images} of the batch: every moving pixel "
-        f"there fills its uncovered time with its own colour, as fill='color'. Pass fill='color' to say "
-        f"so, or a `background` (warned once per process)"
+        f"there fills its uncovered time with what passes behind it (composite='layers'), else with its "
+        f"own colour, as fill='color'. Pass fill='color' to say so, or a `background` (warned once per process)"
     )
 
 

@@ -57,7 +57,8 @@ DEFAULT_SAMPLES = 15
 #: 0.01 to 3) at r = 0.3, and bezier_scatter within 0.53 dB on the seven scenes where objects move
 #: before still pixels; it gains 0.04 to 1.96 dB over the old absolute 0.1 on the Mitsuba scenes
 #: (moving box 33.90 -> 35.16, dolly 25.77 -> 27.73). With a moving camera (dolly, zoom) the
-#: scatter's best is no depth test at all (a band of 100 units): 2.4 to 2.6 dB above r = 0.3.
+#: scatter's composite="sum" does best with no depth test at all; its default composite="layers"
+#: keeps the splats from behind for what a pixel uncovers, and r = 0.3 serves both (docs/defaults.md).
 DEFAULT_RELATIVE_Z_EXTENT = 0.3
 
 #: The shutter every op takes unless told otherwise: the box, a shutter open over the whole exposure,

@@ -25,6 +25,12 @@ DEFAULT_VELOCITY = (1.0, 0.5)
 #: Starts closer to 0 than this (pixels) are moved out to it (see `nudge`).
 MIN_START_SPEED = 0.1
 
+#: The scatter's compositing in every model: seed 003's sum. The models' algebra rests on it (`covered`
+#: reads 1 - the scatter of ones over a zero background as the share of the exposure the paths cover,
+#: `layered_scatter` composites premultiplied per-layer scatters itself), and the held-out results
+#: (docs/fitting.md) were measured with it; the op's default "layers" also splats three times.
+COMPOSITE = "sum"
+
 
 def nudge(v: np.ndarray) -> np.ndarray:
     """A start velocity, moved off v = 0: under a symmetric shutter the blur is even in v, so its
@@ -155,7 +161,7 @@ def _blur(ctx: Context, velocity: Any, shutter: Any = None) -> Any:
         # would only repeat what the model says.
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=r"bezier_scatter\(fill='still'\) found no still pixel", category=UserWarning)
-            return ctx.be.ops.bezier_scatter(ctx.color, ctx.depth, -velocity, velocity, degree=1, samples=o["scatter_samples"], shutter=shutter, fused=fused)
+            return ctx.be.ops.bezier_scatter(ctx.color, ctx.depth, -velocity, velocity, degree=1, samples=o["scatter_samples"], shutter=shutter, fused=fused, composite=COMPOSITE)
     # Seed 000's taps span S / (S + 1) of the exposure: scale the velocity so the blur spans all of it
     # and the parameters are the scene's (see recover's docstring).
     span = (o["samples"] + 1.0) / o["samples"]
@@ -183,7 +189,7 @@ def _hidden_share(ctx: Context, velocity: Any) -> Any:
         return layered_scatter(ctx, velocity, hidden_share=True)
     ones = ctx.depth * 0.0 + 1.0
     o = ctx.options
-    return 1.0 - ctx.be.ops.bezier_scatter(ones, ctx.depth, -velocity, velocity, degree=1, samples=o["scatter_samples"], shutter=shutter_of(ctx, o["scatter_samples"]), background=ones * 0.0)
+    return 1.0 - ctx.be.ops.bezier_scatter(ones, ctx.depth, -velocity, velocity, degree=1, samples=o["scatter_samples"], shutter=shutter_of(ctx, o["scatter_samples"]), background=ones * 0.0, composite=COMPOSITE)
 
 
 @dataclass
@@ -284,7 +290,7 @@ def layered_scatter(ctx: Context, motion: Any, *, hidden_share: bool = False) ->
     depth = be.concat([stack.depth] * n)
     zero = sources * 0.0
     # background=0: what no path covers adds nothing, so each layer comes out premultiplied.
-    splatted = be.ops.bezier_scatter(sources, depth, -motion, motion, degree=1, samples=o["scatter_samples"], shutter=shutter_of(ctx, o["scatter_samples"]), background=zero)
+    splatted = be.ops.bezier_scatter(sources, depth, -motion, motion, degree=1, samples=o["scatter_samples"], shutter=shutter_of(ctx, o["scatter_samples"]), background=zero, composite=COMPOSITE)
     splatted = splatted.reshape(n, layers, channels + 2, ctx.height, ctx.width)
     out, through, hidden = 0.0, 1.0, 0.0
     partial_sum, partial_squares = 0.0, 0.0
@@ -850,7 +856,7 @@ class Rotation(Model):
         if ctx.be.name == "jax" and o.get("jac", "fwd") == "fwd":
             kwargs["fused"] = False
         return ctx.be.ops.bezier_scatter(
-            ctx.color, ctx.depth, None, None, arc_center=center, arc_angle=p["angle"] * ctx.extras["mask"], samples=o["arc_samples"], shutter=shutter_of(ctx, o["arc_samples"]), **kwargs
+            ctx.color, ctx.depth, None, None, arc_center=center, arc_angle=p["angle"] * ctx.extras["mask"], samples=o["arc_samples"], shutter=shutter_of(ctx, o["arc_samples"]), composite=COMPOSITE, **kwargs
         )
 
     def rescale(self, p, factor, height, width):

@@ -12,7 +12,9 @@ from jaxtyping import Array, Float
 
 from diffblur import checks
 from diffblur._scatter_options import (
+    COMPOSITES,
     DEFAULT_BACKGROUND_WEIGHT,
+    DEFAULT_COMPOSITE,
     DEFAULT_FILL,
     DEFAULT_MAX_SAMPLES,
     DEFAULT_NORMALIZATION,
@@ -189,6 +191,7 @@ def bezier_scatter(
     background_weight: float = DEFAULT_BACKGROUND_WEIGHT,
     soft_z_extent: float | Array | None = None,
     relative_z_extent: float | Array = DEFAULT_RELATIVE_Z_EXTENT,
+    composite: str = DEFAULT_COMPOSITE,
     fused: bool | None = None,
 ) -> Float[Array, "b c h w"]:
     """Scatter every moving pixel's colour along its curved path over the exposure (seed 003).
@@ -241,7 +244,8 @@ def bezier_scatter(
             do not move (push-pull: the still pixels' colours averaged over 2 x 2 blocks down to one
             pixel, then filled back in from coarse to fine where a block has no still pixel; the
             pixel's own colour where the image has none, with a UserWarning in eager mode, once per
-            process), or "color", its own colour. "still" is the default because a moving object
+            process; there, with composite="layers", what passes behind the pixel comes first, see
+            `composite`), or "color", its own colour. "still" is the default because a moving object
             uncovers what is behind it, which the still pixels show better than the object's own
             colour does (measured on the presets: docs/methods.md). Still pixels in front of
             moving ones count as background too.
@@ -255,6 +259,18 @@ def bezier_scatter(
             depth, a number > 0 or a 0-d array: a splat counts fully up to level with the
             destination, fading linearly in log depth to nothing at z_source = z_dest (1 + r), so
             that the output does not depend on the scene's depth units.
+        composite: how "coverage" composites a moving pixel's splats. "layers" (default): front to
+            back, each layer over what is behind it by its coverage: the splats from sources nearer
+            than the depth band in front, those level with the pixel, those from behind it (which a
+            depth test without depth write drops; they are what the pixel shows once its own surface
+            has moved off it: what a moving camera or a moving object uncovers), then the fill.
+            Where fill="still" finds no still pixel in an image, the behind splats are weighed
+            against the pixel's own colour as (A_behind + m C) / (alpha_behind + m), m = 1 / samples
+            (one point's mean mass): wherever something passes behind, that is what it uncovers.
+            "sum": seed 003's one sum of the splats the depth test passes, over the fill, where
+            splats that overlap in the exposure are averaged whatever their depth. Still pixels keep
+            the sum in both (they are their own level layer, in front of what passes behind them);
+            "paper" has no layers. "layers" splats three times (nearer, passed, all).
         fused: sum the splats and their backward in one parallel CPU loop each
             (`diffblur._fused_scatter`, numba, a host callback, also under jax.jit and jax.vmap),
             with the same result and gradients (tested) and O(pixels) memory, faster on the CPU
@@ -305,6 +321,7 @@ def bezier_scatter(
         background = _checks.image("background", background)
         _checks.same_shape("background", background, "color", color)
     fill = checks.require_choice("fill", fill, FILLS)
+    composite = checks.require_choice("composite", composite, COMPOSITES)
     relative, band = checks.depth_band(soft_z_extent, relative_z_extent)
     extent = _extent(band, depth, "relative_z_extent" if relative else "soft_z_extent")
     window = get_shutter(shutter)
@@ -347,6 +364,7 @@ def bezier_scatter(
         paper=normalization == "paper",
         background_weight=background_weight,
         fill=fill,
+        layers=composite == "layers",
         fused=fused,
     )
 
@@ -373,7 +391,7 @@ def _terms(kind: str, degree: int, given: dict[str, Array]) -> tuple:
     return _bezier_terms(degree, given["offset_prev"], given["offset_next"], given.get("offset_mid_prev"))
 
 
-def _splat_sums(color: Array, depth: Array, terms: tuple, masses: Array, extent: Array, moving: Array, x: Array, y: Array, *, kind: str, paper: bool) -> Array:
+def _splat_sums(color: Array, depth: Array, terms: tuple, masses: Array, extent: Array, moving: Array, x: Array, y: Array, *, kind: str, paper: bool, passes: int = 1) -> Array:
     """The sums (B, C + 1, H, W) of omega * [color, 1] over every moving pixel's points, by
     jax.numpy ops (one scatter-add per chunk of points), cropped to the image."""
     batch, channels, height, width = color.shape
@@ -382,7 +400,8 @@ def _splat_sums(color: Array, depth: Array, terms: tuple, masses: Array, extent:
     # Rows of [color, 1] per source pixel: one scatter-add per point sums colour and weight together.
     rows = jnp.concatenate([color, jnp.ones_like(depth)], axis=1).transpose(0, 2, 3, 1).reshape(-1, channels + 1).astype(wide)
     times = jnp.asarray(point_times(samples), dtype=wide)
-    chunk = max(1, _CHUNK_PIXEL_POINTS // rows.shape[0])
+    # composite="layers" runs `passes` (3) of these in one call: they share the chunk budget.
+    chunk = max(1, _CHUNK_PIXEL_POINTS // (passes * rows.shape[0]))
     splat = functools.partial(_splat, paper, kind)
     fixed = (terms, x[None], y[None], rows, depth, extent, moving)
     if chunk >= samples:
@@ -401,7 +420,7 @@ def _splat_sums(color: Array, depth: Array, terms: tuple, masses: Array, extent:
     return accumulated.reshape(batch, height + 2, width + 2, channels + 1)[:, 1:-1, 1:-1].transpose(0, 3, 1, 2)
 
 
-@functools.partial(jax.jit, static_argnames=("kind", "degree", "paper", "background_weight", "fill", "fused"))
+@functools.partial(jax.jit, static_argnames=("kind", "degree", "paper", "background_weight", "fill", "layers", "fused"))
 def _scatter(
     color: Array,
     depth: Array,
@@ -415,6 +434,7 @@ def _scatter(
     paper: bool,
     background_weight: float,
     fill: str,
+    layers: bool,
     fused: bool,
 ) -> Array:
     """The scatter after the checks (jitted, so that eager calls run one compiled program); `given`
@@ -426,20 +446,46 @@ def _scatter(
     terms = _terms(kind, degree, given)
     moving = moving_mask(kind, _moved_by(kind, degree, given), x, y)
 
-    if fused:
-        from jax_impl._fused_scatter import fused_splat
+    def sums(depth):
+        if fused:
+            from jax_impl._fused_scatter import fused_splat
 
-        accumulated = fused_splat(color, depth, kind, terms, masses, extent, moving, paper)
-    else:
-        accumulated = _splat_sums(color, depth, terms, masses, extent, moving, x, y, kind=kind, paper=paper)
-    splatted, alpha = accumulated[:, :channels], accumulated[:, channels:]
-    # alpha copied per channel rather than broadcast: the gradient of a broadcast over the channel axis
-    # is a reduce over that leading axis, two of which took 72 ms of the backward at 1280x720 (XLA:CPU).
-    alpha = jnp.concatenate([alpha] * channels, axis=1)
+            return fused_splat(color, depth, kind, terms, masses, extent, moving, paper)
+        return _splat_sums(color, depth, terms, masses, extent, moving, x, y, kind=kind, paper=paper, passes=3 if layers and not paper else 1)
+
+    def split(accumulated):
+        # alpha copied per channel rather than broadcast: the gradient of a broadcast over the channel
+        # axis is a reduce over that leading axis, two of which took 72 ms of the backward at 1280x720
+        # (XLA:CPU).
+        return accumulated[:, :channels], jnp.concatenate([accumulated[:, channels:]] * channels, axis=1)
+
+    accumulated = sums(depth)
+    splatted, alpha = split(accumulated)
+    still_fill = background is None and fill == "still"
     if background is None:
         background = color if fill == "color" else _still_fill(color, jnp.logical_not(moving)[:, None].astype(color.dtype))
     fill = jnp.where(moving[:, None], background, color).astype(wide)
     if paper:
         return ((splatted + background_weight * fill) / (alpha + background_weight)).astype(color.dtype)
+    summed = _over(splatted, alpha, fill)
+    if not layers:
+        return summed.astype(color.dtype)
+    # The same splats with the depths negated pass where the source is level or behind, so their
+    # complement is the nearer ones; with equal depths every splat passes.
+    every = sums(jnp.zeros_like(depth))
+    near = every - sums(-depth)
+    level, behind = accumulated - near, every - accumulated
+    back = _over(*split(behind), fill)
+    if still_fill:  # where an image has no still pixel, what passes behind a pixel is what it uncovers
+        mass = 1.0 / masses.shape[0]
+        behind_splatted, behind_alpha = split(behind)
+        unknown = (behind_splatted + mass * fill) / (behind_alpha + mass)
+        back = jnp.where(jnp.all(moving, axis=(1, 2))[:, None, None, None], unknown, back)
+    layered = _over(*split(near), _over(*split(level), back))
+    return jnp.where(moving[:, None], layered, summed).astype(color.dtype)
+
+
+def _over(splatted: Array, alpha: Array, behind: Array) -> Array:
+    """A layer of splats over what is behind it, by coverage (`_scatter_options.COMPOSITES`)."""
     uncovered = jnp.where(alpha < 1, 1.0 - alpha, 0.0)
-    return ((splatted + uncovered * fill) / jnp.where(alpha > 1, alpha, 1.0)).astype(color.dtype)
+    return (splatted + uncovered * behind) / jnp.where(alpha > 1, alpha, 1.0)

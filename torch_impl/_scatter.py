@@ -12,7 +12,9 @@ from torch.utils.checkpoint import checkpoint
 
 from diffblur import checks
 from diffblur._scatter_options import (
+    COMPOSITES,
     DEFAULT_BACKGROUND_WEIGHT,
+    DEFAULT_COMPOSITE,
     DEFAULT_FILL,
     DEFAULT_MAX_SAMPLES,
     DEFAULT_NORMALIZATION,
@@ -190,6 +192,7 @@ def bezier_scatter(
     background_weight: float = DEFAULT_BACKGROUND_WEIGHT,
     soft_z_extent: float | Tensor | None = None,
     relative_z_extent: float | Tensor = DEFAULT_RELATIVE_Z_EXTENT,
+    composite: str = DEFAULT_COMPOSITE,
     fused: bool | None = None,
 ) -> Float[Tensor, "b c h w"]:
     """Scatter every moving pixel's colour along its curved path over the exposure (seed 003).
@@ -242,7 +245,8 @@ def bezier_scatter(
             do not move (push-pull: the still pixels' colours averaged over 2 x 2 blocks down to one
             pixel, then filled back in from coarse to fine where a block has no still pixel; the
             pixel's own colour where the image has none, with a UserWarning in eager mode, once per
-            process), or "color", its own colour. "still" is the default because a moving object
+            process; there, with composite="layers", what passes behind the pixel comes first, see
+            `composite`), or "color", its own colour. "still" is the default because a moving object
             uncovers what is behind it, which the still pixels show better than the object's own
             colour does (measured on the presets: docs/methods.md). Still pixels in front of
             moving ones count as background too.
@@ -256,6 +260,18 @@ def bezier_scatter(
             depth, a number > 0 or a 0-d tensor: a splat counts fully up to level with the
             destination, fading linearly in log depth to nothing at z_source = z_dest (1 + r), so
             that the output does not depend on the scene's depth units.
+        composite: how "coverage" composites a moving pixel's splats. "layers" (default): front to
+            back, each layer over what is behind it by its coverage: the splats from sources nearer
+            than the depth band in front, those level with the pixel, those from behind it (which a
+            depth test without depth write drops; they are what the pixel shows once its own surface
+            has moved off it: what a moving camera or a moving object uncovers), then the fill.
+            Where fill="still" finds no still pixel in an image, the behind splats are weighed
+            against the pixel's own colour as (A_behind + m C) / (alpha_behind + m), m = 1 / samples
+            (one point's mean mass): wherever something passes behind, that is what it uncovers.
+            "sum": seed 003's one sum of the splats the depth test passes, over the fill, where
+            splats that overlap in the exposure are averaged whatever their depth. Still pixels keep
+            the sum in both (they are their own level layer, in front of what passes behind them);
+            "paper" has no layers. "layers" splats three times (nearer, passed, all).
         fused: sum the splats and their backward in one parallel CPU loop each
             (`diffblur._fused_scatter`, numba), with the same result and gradients (tested) and
             O(pixels) memory, faster on the CPU (timings: docs/fused.md). The normalisation and the fill stay tensor ops.
@@ -303,6 +319,7 @@ def bezier_scatter(
     if background is not None:
         _checks.same_shape("background", _checks.image("background", background), "color", color)
     fill = checks.require_choice("fill", fill, FILLS)
+    composite = checks.require_choice("composite", composite, COMPOSITES)
     relative, band = checks.depth_band(soft_z_extent, relative_z_extent)
     extent = _extent(band, depth, "relative_z_extent" if relative else "soft_z_extent")
     window = get_shutter(shutter)
@@ -348,6 +365,7 @@ def bezier_scatter(
         paper=normalization == "paper",
         background_weight=background_weight,
         fill=fill,
+        layers=composite == "layers",
         fused=fused,
     )
 
@@ -366,7 +384,7 @@ def _terms(kind: str, degree: int, given: dict[str, Tensor]) -> tuple:
 
 
 def _splat_sums(
-    color: Tensor, depth: Tensor, terms: tuple, masses: Tensor, extent: float | Tensor, moving: Tensor, x: Tensor, y: Tensor, *, kind: str, paper: bool
+    color: Tensor, depth: Tensor, terms: tuple, masses: Tensor, extent: float | Tensor, moving: Tensor, x: Tensor, y: Tensor, *, kind: str, paper: bool, passes: int = 1
 ) -> Tensor:
     """The sums (B, C + 1, H, W) of omega * [color, 1] over every moving pixel's points, by tensor
     ops (one scatter-add per chunk of points), cropped to the image."""
@@ -376,7 +394,8 @@ def _splat_sums(
     # Rows of [color, 1] per source pixel: one scatter-add per point sums colour and weight together.
     rows = torch.cat([color, torch.ones_like(depth)], dim=1).permute(0, 2, 3, 1).reshape(-1, channels + 1)
     times = torch.as_tensor(point_times(samples), dtype=wide, device=color.device)
-    chunk = max(1, _CHUNK_PIXEL_POINTS // rows.shape[0])
+    # composite="layers" runs `passes` (3) of these in one call: they share the chunk budget.
+    chunk = max(1, _CHUNK_PIXEL_POINTS // (passes * rows.shape[0]))
     # Under torch.compile the compiler chooses what the backward keeps.
     recompute = chunk < samples and torch.is_grad_enabled() and not torch.compiler.is_compiling()
     accumulated = torch.zeros(batch * (height + 2) * (width + 2), channels + 1, dtype=wide, device=color.device)
@@ -402,10 +421,12 @@ def _scatter(
     paper: bool,
     background_weight: float,
     fill: str,
+    layers: bool,
     fused: bool,
 ) -> Tensor:
     """The scatter after the checks: `given` and `masses` in `position_dtype(color.dtype)`; the
-    splats on the fused kernel (`torch_impl._fused_scatter`) if `fused`."""
+    splats on the fused kernel (`torch_impl._fused_scatter`) if `fused`; `layers`: composite="layers"
+    (with "coverage")."""
     _, channels, height, width = color.shape
     x, y = pixel_grid(height, width, color)
     terms = _terms(kind, degree, given)
@@ -413,17 +434,39 @@ def _scatter(
     if fill == "still" and background is None and not torch.compiler.is_compiling():
         warn_without_still(moving.cpu().numpy(), stacklevel=4)  # + the public wrapper (checks.lists_options)
 
-    if fused:
-        from torch_impl._fused_scatter import fused_splat
+    def sums(depth):
+        if fused:
+            from torch_impl._fused_scatter import fused_splat
 
-        accumulated = fused_splat(color, depth, kind, terms, masses, extent, moving, paper)
-    else:
-        accumulated = _splat_sums(color, depth, terms, masses, extent, moving, x, y, kind=kind, paper=paper)
+            return fused_splat(color, depth, kind, terms, masses, extent, moving, paper)
+        return _splat_sums(color, depth, terms, masses, extent, moving, x, y, kind=kind, paper=paper, passes=3 if layers and not paper else 1)
+
+    accumulated = sums(depth)
     splatted, alpha = accumulated[:, :channels], accumulated[:, channels:]
+    still_fill = background is None and fill == "still"
     if background is None:
         background = color if fill == "color" else _still_fill(color, (~moving).unsqueeze(1).to(color.dtype))
     fill = torch.where(moving.unsqueeze(1), background, color)
     if paper:
         return ((splatted + background_weight * fill) / (alpha + background_weight)).to(color.dtype)
+    summed = _over(splatted, alpha, fill)
+    if not layers:
+        return summed.to(color.dtype)
+    # The same splats with the depths negated pass where the source is level or behind, so their
+    # complement is the nearer ones; with equal depths every splat passes.
+    every = sums(torch.zeros_like(depth))
+    near = every - sums(-depth)
+    level, behind = accumulated - near, every - accumulated
+    back = _over(behind[:, :channels], behind[:, channels:], fill)
+    if still_fill:  # where an image has no still pixel, what passes behind a pixel is what it uncovers
+        mass = 1.0 / masses.shape[0]
+        unknown = (behind[:, :channels] + mass * fill) / (behind[:, channels:] + mass)
+        back = torch.where(moving.flatten(1).all(1).reshape(-1, 1, 1, 1), unknown, back)
+    layered = _over(near[:, :channels], near[:, channels:], _over(level[:, :channels], level[:, channels:], back))
+    return torch.where(moving.unsqueeze(1), layered, summed).to(color.dtype)
+
+
+def _over(splatted: Tensor, alpha: Tensor, behind: Tensor) -> Tensor:
+    """A layer of splats over what is behind it, by coverage (`_scatter_options.COMPOSITES`)."""
     uncovered = torch.where(alpha < 1, 1.0 - alpha, 0.0)
-    return ((splatted + uncovered * fill) / torch.where(alpha > 1, alpha, 1.0)).to(color.dtype)
+    return (splatted + uncovered * behind) / torch.where(alpha > 1, alpha, 1.0)

@@ -11,6 +11,7 @@ propeller against the accumulation ground truth.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 import pytest
@@ -182,6 +183,48 @@ def test_depth_test_by_hand(implementation):
     # parent's right neighbour (0.25) = 0.0625.
     out = scatter(implementation, color, depth, prev, nxt, degree=1, samples=2, shutter="box", soft_z_extent=0.1)
     np.testing.assert_allclose(out[0, 0, 0], [0.0, 0.0625, 0.125 + 0.875 * 0.2, 0.5 + 0.5 * 0.3, 0.25 + 0.75 * 0.4], atol=1e-12)
+
+
+@pytest.mark.parametrize("implementation", IMPLEMENTATIONS)
+def test_a_nearer_splat_covers_a_moving_pixel_instead_of_being_averaged_with_it(implementation):
+    """composite="layers": pixel 0 (depth 1, colour 1) moves along x = 1 .. 3 and covers pixel 2 for
+    half the exposure (points at 1.5 and 2.5, mass 1/2 each). Pixels 1-4 are a far surface (depth 4,
+    colour 0) sliding 0.5 px each way, which covers pixel 2 for the whole exposure (its own point 3/4,
+    its neighbours' 1/8 each). The nearer splat goes over the far ones: 0.5, what the camera sees.
+    "sum" (seed 003, no depth write) averages the 1.5 exposures of coverage: 1/3."""
+    color = np.array([1.0, 0.0, 0.0, 0.0, 0.0]).reshape(1, 1, 1, 5)
+    depth = np.array([1.0, 4.0, 4.0, 4.0, 4.0]).reshape(1, 1, 1, 5)
+    prev = vectors(1, 5, **{"0,0": (1.0, 0.0)}, **{f"0,{j}": (-0.5, 0.0) for j in range(1, 5)})
+    nxt = vectors(1, 5, **{"0,0": (3.0, 0.0)}, **{f"0,{j}": (0.5, 0.0) for j in range(1, 5)})
+    run = lambda **o: scatter(implementation, color, depth, prev, nxt, degree=1, samples=2, shutter="box", **o)[0, 0, 0, 2]  # noqa: E731
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # no still pixel
+        np.testing.assert_allclose(run(), 0.5, atol=1e-12)
+        np.testing.assert_allclose(run(composite="sum"), 1.0 / 3.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("implementation", IMPLEMENTATIONS)
+def test_what_passes_behind_a_moving_pixel_is_what_it_uncovers(implementation):
+    """Every pixel moves (no still pixel). Pixel 2 (depth 1, colour 1) leaves itself entirely (points at
+    3 and 4); pixel 1 of a far surface (depth 4, colour 0.6) passes behind it (its point at 2.5 lands
+    half on pixel 2 with mass 1/2: coverage 1/4). "sum" drops that splat (the depth test) and shows
+    pixel 2's own colour, 1, for the whole exposure. "layers" shows it for its coverage over the fill
+    (fill="color": 0.25 * 0.6 + 0.75 * 1 = 0.9) and, with fill="still" finding no still pixel, weighs
+    it against the pixel's own colour by one point's mean mass, 1 / samples = 1/2:
+    (0.25 * 0.6 + 0.5 * 1) / (0.25 + 0.5)."""
+    color = np.array([0.2, 0.6, 1.0, 0.3, 0.4]).reshape(1, 1, 1, 5)
+    depth = np.array([4.0, 4.0, 1.0, 4.0, 4.0]).reshape(1, 1, 1, 5)
+    creep = {f"0,{j}": (0.01, 0.0) for j in (0, 3, 4)}  # moving, landing on themselves and to the right
+    prev = vectors(1, 5, **{"0,1": (-1.5, 0.0), "0,2": (0.5, 0.0)}, **creep)
+    nxt = vectors(1, 5, **{"0,1": (2.5, 0.0), "0,2": (2.5, 0.0)}, **creep)
+    run = lambda **o: scatter(implementation, color, depth, prev, nxt, degree=1, samples=2, shutter="box", **o)[0, 0, 0, 2]  # noqa: E731
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # no still pixel
+        np.testing.assert_allclose(run(composite="sum"), 1.0, atol=1e-12)
+        np.testing.assert_allclose(run(fill="color"), 0.9, atol=1e-12)
+        np.testing.assert_allclose(run(), (0.25 * 0.6 + 0.5) / 0.75, atol=1e-12)
+        # seed 003's own normalisation has no layers
+        np.testing.assert_allclose(run(normalization="paper"), run(normalization="paper", composite="sum"), atol=1e-15)
 
 
 # ----- the curve ----------------------------------------------------------------------------------
