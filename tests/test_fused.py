@@ -168,7 +168,7 @@ def test_half_precision_falls_back_to_the_tensor_ops():
 def test_torch_double_backward_is_refused_clearly():
     color, velocity, depth, _ = (torch.tensor(a, requires_grad=True) for a in _scene())
     (grad,) = torch.autograd.grad(torch_impl.reconstruct(color, velocity, depth, max_radius=4.0).sum(), velocity, create_graph=True)
-    with pytest.raises(RuntimeError, match="once_differentiable|double backward|does not require grad"):
+    with pytest.raises(RuntimeError, match="double backward"):
         grad.sum().backward()
 
 
