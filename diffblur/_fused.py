@@ -795,6 +795,41 @@ def reconstruct_backward(
     given the forward's out and weight and the output's gradient grad_out. needs: whether color,
     velocity and depth want theirs; None for the others, whose scatter to the taps' pixels (most of
     the backward's time) is skipped. neighbors' comes with velocity's."""
+    total, grad_neighbors = reconstruct_backward_stacked(
+        color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out, tile=tile, soft_z_extent=soft_z_extent, min_radius=min_radius, own_odd=own_odd, needs=needs
+    )
+    channels = color.shape[1]
+    need_color, need_velocity, need_depth = (bool(need) for need in needs)
+    return (
+        total[:, :channels] if need_color else None,
+        total[:, channels : channels + 2] if need_velocity else None,
+        total[:, channels + 2 :] if need_depth else None,
+        grad_neighbors,
+    )
+
+
+def reconstruct_backward_stacked(
+    color: np.ndarray,
+    velocity: np.ndarray,
+    depth: np.ndarray,
+    neighbors: np.ndarray,
+    counts: np.ndarray,
+    jitter: np.ndarray,
+    out: np.ndarray,
+    weight: np.ndarray,
+    grad_out: np.ndarray,
+    *,
+    tile: int,
+    soft_z_extent: float,
+    min_radius: float,
+    own_odd: bool,
+    needs: tuple[bool, bool, bool] = (True, True, True),
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """`reconstruct_backward` with the gradients w.r.t. color, velocity and depth in one array
+    (B, C + 3, H, W), stacked along the channels as the kernel writes them (the channels of one not
+    asked for are left unwritten), and neighbors' gradient (None unless velocity's is asked for).
+    The PyTorch operator returns this array whole and slices it, as an operator's outputs may not
+    be views of one another."""
     color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out = read_only(color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out)
     batch, channels, height, width = color.shape
     chunks = min(_threads(), batch * height)
@@ -807,12 +842,7 @@ def reconstruct_backward(
     _reconstruct_backward(*arrays, *settings, out, weight, grad_out, grads, grad_neighbors, *scratch)
     total = np.empty((batch, channels + 3, height, width), dtype=color.dtype)
     _deinterleave_sum(grads, total)
-    return (
-        total[:, :channels] if need_color else None,
-        total[:, channels : channels + 2] if need_velocity else None,
-        total[:, channels + 2 :] if need_depth else None,
-        grad_neighbors.sum(axis=0) if need_velocity else None,
-    )
+    return total, grad_neighbors.sum(axis=0) if need_velocity else None
 
 
 # -- gather_blur ------------------------------------------------------------------------------------

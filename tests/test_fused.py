@@ -115,9 +115,9 @@ def test_default_takes_the_fused_path_and_it_is_the_pure_result():
     """fused=None on float32 CPU inputs runs the kernel (its autograd node), with the pure result."""
     color, velocity, depth, _ = (torch.tensor(a, requires_grad=True) for a in _scene(np.float32))
     out = torch_impl.reconstruct(color, velocity, depth, max_radius=4.0)
-    assert type(out.grad_fn).__name__ == "_FusedReconstructBackward"
+    assert "diffblur_reconstruct_forward" in type(out.grad_fn).__name__  # the custom operator's autograd node
     pure = torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, fused=False)
-    assert type(pure.grad_fn).__name__ != "_FusedReconstructBackward"
+    assert "diffblur" not in type(pure.grad_fn).__name__
     torch.testing.assert_close(out, pure, rtol=0, atol=2e-5)
 
 
@@ -168,7 +168,7 @@ def test_half_precision_falls_back_to_the_tensor_ops():
 def test_torch_double_backward_is_refused_clearly():
     color, velocity, depth, _ = (torch.tensor(a, requires_grad=True) for a in _scene())
     (grad,) = torch.autograd.grad(torch_impl.reconstruct(color, velocity, depth, max_radius=4.0).sum(), velocity, create_graph=True)
-    with pytest.raises(RuntimeError, match="once_differentiable|double backward|does not require grad"):
+    with pytest.raises(RuntimeError, match="double backward"):
         grad.sum().backward()
 
 

@@ -260,14 +260,11 @@ def _refusals(monkeypatch, cause):
     if cause == "numba":
         monkeypatch.setattr(_fused_scatter, "numba", None)
         return "numba is not installed", "numba is not installed"
-    if cause == "tracing":
-        monkeypatch.setattr(torch.compiler, "is_compiling", lambda: True)
-        return "torch.compile is tracing", None
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     return None, "JAX's default backend is gpu"
 
 
-@pytest.mark.parametrize("cause", ["numba", "tracing", "backend"])
+@pytest.mark.parametrize("cause", ["numba", "backend"])
 def test_fused_true_refuses_saying_why_and_none_falls_back(monkeypatch, cause):
     arrays = _scene(np.float32)
     torch_values = _torch_values(arrays, "degree 2")
@@ -297,7 +294,7 @@ def test_torch_double_backward_is_refused_clearly():
     values = {name: value.requires_grad_() for name, value in _torch_values(_scene(), "degree 2").items()}
     out = _call(torch_impl, values, "degree 2", dict(samples=5), True)
     (grad,) = torch.autograd.grad(out.square().sum(), values["offset_next"], create_graph=True)
-    with pytest.raises(RuntimeError, match="once_differentiable|double backward|does not require grad"):
+    with pytest.raises(RuntimeError, match="double backward"):
         grad.sum().backward()
 
 

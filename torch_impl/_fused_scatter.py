@@ -1,4 +1,7 @@
-"""`bezier_scatter`'s splats on the fused CPU kernel (`diffblur._fused_scatter`) as an `autograd.Function`.
+"""`bezier_scatter`'s splats on the fused CPU kernel (`diffblur._fused_scatter`) as PyTorch custom
+operators (`diffblur::splat_forward`, `diffblur::splat_backward`, the second registered as the
+first's gradient), which `torch.compile` keeps as opaque calls in its graph instead of tracing the
+splats.
 
 The kernel takes the path as the Bezier's power-basis terms (or the arc's centre and angle) and the
 shutter's masses as tensors: building them stays a tensor op, so autograd carries the kernel's
@@ -9,21 +12,20 @@ from __future__ import annotations
 
 import torch
 from torch import Tensor
-from torch.autograd.function import once_differentiable
 
 from diffblur import _fused_scatter
+from torch_impl._fused import _first_order_only
 from torch_impl._primitives import _floor_extent
 
 
 def unfused_reason(color: Tensor) -> str | None:
-    """Why the fused splats cannot run on these inputs now, or None when they can."""
+    """Why the fused splats cannot run on these inputs now, or None when they can (under
+    torch.compile too: the kernel is a custom operator)."""
     reason = _fused_scatter.splat_unfused_reason(str(color.dtype).removeprefix("torch."))
     if reason is not None:
         return reason
     if color.device.type != "cpu":
         return f"device {color.device} (the fused kernel runs on the CPU)"
-    if torch.compiler.is_compiling():
-        return "torch.compile is tracing (the kernel is opaque to it)"
     return None
 
 
@@ -31,20 +33,47 @@ def _array(tensor: Tensor):
     return tensor.detach().contiguous().numpy()
 
 
-class _FusedSplat(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx, color, depth, path, masses, extent, moving, arc, paper):
-        sums = _fused_scatter.splat_forward(*(_array(t) for t in (color, depth, path, masses, extent, moving)), arc=arc, paper=paper)
-        ctx.save_for_backward(color, depth, path, masses, extent, moving)
-        ctx.arc, ctx.paper = arc, paper
-        return torch.from_numpy(sums)
+@torch.library.custom_op("diffblur::splat_forward", mutates_args=(), device_types="cpu")
+def splat_forward(color: Tensor, depth: Tensor, path: Tensor, masses: Tensor, extent: Tensor, moving: Tensor, arc: bool, paper: bool) -> Tensor:
+    """`diffblur._fused_scatter.splat_forward`: the sums (B, C + 1, H, W)."""
+    arrays = (_array(t) for t in (color, depth, path, masses, extent, moving))
+    return torch.from_numpy(_fused_scatter.splat_forward(*arrays, arc=arc, paper=paper))
 
-    @staticmethod
-    @once_differentiable
-    def backward(ctx, grad_sums):
-        arrays = [_array(t) for t in ctx.saved_tensors]
-        grads = _fused_scatter.splat_backward(*arrays, _array(grad_sums), arc=ctx.arc, paper=ctx.paper)
-        return (*(torch.from_numpy(g) for g in grads), None, None, None)
+
+@splat_forward.register_fake
+def _(color, depth, path, masses, extent, moving, arc, paper):
+    batch, channels, height, width = color.shape
+    return color.new_empty((batch, channels + 1, height, width))
+
+
+@torch.library.custom_op("diffblur::splat_backward", mutates_args=(), device_types="cpu")
+def splat_backward(
+    color: Tensor, depth: Tensor, path: Tensor, masses: Tensor, extent: Tensor, moving: Tensor, grad_sums: Tensor, arc: bool, paper: bool
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """`diffblur._fused_scatter.splat_backward`: the gradients w.r.t. color, depth, path, masses and
+    extent."""
+    arrays = (_array(t) for t in (color, depth, path, masses, extent, moving, grad_sums))
+    return tuple(torch.from_numpy(g) for g in _fused_scatter.splat_backward(*arrays, arc=arc, paper=paper))
+
+
+@splat_backward.register_fake
+def _(color, depth, path, masses, extent, moving, grad_sums, arc, paper):
+    return tuple(x.new_empty(x.shape, dtype=color.dtype) for x in (color, depth, path, masses, extent))
+
+
+def _setup(ctx, inputs, output):
+    color, depth, path, masses, extent, moving, arc, paper = inputs
+    ctx.save_for_backward(color, depth, path, masses, extent, moving)
+    ctx.arc, ctx.paper = arc, paper
+
+
+def _gradient(ctx, grad_sums):
+    grads = splat_backward(*ctx.saved_tensors, grad_sums, ctx.arc, ctx.paper)
+    return (*grads, None, None, None)
+
+
+splat_forward.register_autograd(_gradient, setup_context=_setup)
+_first_order_only(splat_backward, "bezier_scatter")
 
 
 def _path(kind: str, terms: tuple) -> Tensor:
@@ -62,4 +91,4 @@ def fused_splat(color: Tensor, depth: Tensor, kind: str, terms: tuple, masses: T
     extent = _floor_extent(extent)
     if not isinstance(extent, Tensor):  # a number: the tensor ops compare in the depth's dtype
         extent = torch.tensor(extent, dtype=depth.dtype)
-    return _FusedSplat.apply(color, depth, _path(kind, terms), masses, extent.to(depth.dtype), moving, kind == "arc", paper)
+    return splat_forward(color, depth, _path(kind, terms), masses, extent.to(depth.dtype), moving, kind == "arc", bool(paper))

@@ -55,8 +55,9 @@ def gather_blur(
         fused: run the gather and its backward in one parallel CPU loop (`diffblur._fused`,
             numba) instead of tensor ops: same result and gradients (tested, the shutter's
             parameters included). None (default): fused where it applies (CPU, float32/float64,
-            bilinear, no pyramid, eager mode; any shutter, adaptive sampling included), tensor
-            ops elsewhere. True: fused or a ValueError saying why not. False: always the tensor
+            bilinear, no pyramid; any shutter, adaptive sampling included; eagerly and under
+            torch.compile, where the kernel and its backward are custom operators), tensor ops
+            elsewhere. True: fused or a ValueError saying why not. False: always the tensor
             ops. The fused backward is not differentiable again (no double backward).
 
     Returns:

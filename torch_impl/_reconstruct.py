@@ -116,7 +116,7 @@ def reconstruct(
             tiles (|NeighborMax| <= 0.001 px, or the early-out's 0.5 px when early_out is on)
             return the image. Tiles of the full-rate class get the full-rate result. On the fused
             path (see `fused`) each tile takes its class's taps inside the kernel, eagerly and
-            under jax.jit. On the tensor ops each class runs on its tiles' pixels only in eager
+            compiled (torch.compile, jax.jit). On the tensor ops each class runs on its tiles' pixels only in eager
             mode; under compilation every class runs on every pixel and is selected per tile
             (same result, no saving).
         pyramid: where the taps are farther apart than a pixel (2 |v| / (samples + 1) > 1 along
@@ -127,9 +127,11 @@ def reconstruct(
             instead of tensor ops: same result and gradients (tested), faster on the CPU (timings:
             docs/fused.md).
             None (default): fused where it applies (CPU, float32/float64, bilinear, box shutter,
-            no pyramid, eager mode, jitter without grad; adaptive sampling included), tensor ops
-            elsewhere. True: fused or a ValueError saying why not. False: always the tensor ops.
-            The fused backward is not differentiable again (no double backward).
+            no pyramid, jitter without grad; adaptive sampling included; eagerly and under
+            torch.compile, where the kernel and its backward are custom operators, one opaque call
+            each in the graph), tensor ops elsewhere. True: fused or a ValueError saying why not.
+            False: always the tensor ops. The fused backward is not differentiable again (no
+            double backward).
 
     Returns:
         (B, C, H, W), color's dtype and device.

@@ -275,8 +275,8 @@ def bezier_scatter(
         fused: sum the splats and their backward in one parallel CPU loop each
             (`diffblur._fused_scatter`, numba), with the same result and gradients (tested) and
             O(pixels) memory, faster on the CPU (timings: docs/fused.md). The normalisation and the fill stay tensor ops.
-            None (default): fused where it applies (CPU, float32/float64, not while
-            torch.compile traces), tensor ops elsewhere. True: fused or a ValueError saying why not.
+            None (default): fused where it applies (CPU, float32/float64; under torch.compile
+            too, where the kernel and its backward are custom operators), tensor ops elsewhere. True: fused or a ValueError saying why not.
             False: always the tensor ops. The fused backward is not differentiable again (no double
             backward).
 

@@ -61,6 +61,11 @@ NAN_CALLS = {
     "nearest": lambda c, v: torch_impl.gather_blur(c, v, samples=3, sampling="nearest", fused=False),
     "adaptive": lambda c, v: torch_impl.gather_blur(c, v, samples=3, adaptive=True, fused=False),
     "pyramid": lambda c, v: torch_impl.gather_blur(c, v, samples=3, pyramid=True, fused=False),
+    # The fused kernels run under torch.compile too (custom operators): they clamp their reads.
+    "fused": lambda c, v: torch_impl.gather_blur(c, v, samples=3, fused=True),
+    "fused adaptive": lambda c, v: torch_impl.gather_blur(c, v, samples=3, adaptive=True, fused=True),
+    "fused reconstruct": lambda c, v: torch_impl.reconstruct(c, v, torch.ones_like(c[:, :1]), samples=3, max_radius=1.0, fused=True),
+    "fused scatter": lambda c, v: torch_impl.bezier_scatter(c, torch.ones_like(c[:, :1]), -v, v, samples=3, fill="color", fused=True),
 }
 
 
