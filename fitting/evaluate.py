@@ -528,6 +528,9 @@ def main(argv: list[str] | None = None) -> int:
         _limit_threads(args.threads, backends)
     noise = (0.0,) if args.no_noise else (0.0, NOISE_SIGMA)
     load_before = _load()
+    # The code the fits run: the commit when they start (a checkout changed while they run changes
+    # files, not the modules already imported).
+    commit = _commit()
     start = time.perf_counter()
     cases = family(args.cases, args.size, seed)
     render_seconds = time.perf_counter() - start
@@ -540,7 +543,7 @@ def main(argv: list[str] | None = None) -> int:
         "command": "python -m fitting.evaluate" + (" " + " ".join(argv) if argv else ""),
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "machine": _machine(),
-        "commit": _commit(),
+        "commit": commit,
         "seed": seed,
         "family": args.family,
         "cases": len(cases),
