@@ -122,5 +122,6 @@ def test_reconstruct_backward_memory_does_not_grow_with_taps():
     """Each tap is recomputed in the backward pass (activation checkpointing), so what autograd
     keeps is O(pixels), the same for 3 taps as for 31."""
     few, many = _saved_planes(3), _saved_planes(31)
-    assert many == few
+    # The fused kernel's custom operator also keeps per-tap scalars (a few bytes): far below a plane.
+    assert abs(many - few) < 0.01, (few, many)
     assert few < 40
