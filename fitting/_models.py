@@ -300,8 +300,9 @@ def layered_scatter(ctx: Context, motion: Any, *, hidden_share: bool = False) ->
             hidden = hidden + through * splatted[:, k, channels + 1 : channels + 2]
         coverage = splatted[:, k, channels : channels + 1]
         through = through * (1.0 - coverage)
-        partial = 4.0 * coverage * (1.0 - coverage)
-        partial_sum, partial_squares = partial_sum + partial, partial_squares + partial * partial
+        if hidden_share:
+            partial = 4.0 * coverage * (1.0 - coverage)
+            partial_sum, partial_squares = partial_sum + partial, partial_squares + partial * partial
     if hidden_share:
         # The composite is exact where at most one layer covers a pixel for part of the exposure
         # (a still layer covers it all or none of it); where two do, it assumes their coverings
