@@ -1,17 +1,19 @@
 """Reads the facts the shared checks in `diffblur.checks` need off JAX arrays.
 
 Checks that look at the data (signs, finiteness) raise ValueError on concrete arrays; under
-`jax.jit` (traced arrays) they go through `equinox.error_if`, which raises at run time.
+`jax.jit` (traced arrays) they raise when the computation runs, through `_runtime_error.raise_if`
+(XLA's `JaxRuntimeError` whose text starts with the library's message).
 """
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from diffblur import checks
+
+from ._runtime_error import raise_if
 
 
 def array(name: str, x: object) -> jax.Array:
@@ -46,12 +48,13 @@ def same_shape(name: str, x: jax.Array, reference_name: str, reference: jax.Arra
 
 
 def data_check(x: jax.Array, bad: jax.Array, message: str) -> jax.Array:
-    """Raise ValueError(message) now if `bad`, or EqxRuntimeError at run time under jit.
+    """Raise ValueError(message) now if `bad`, or JaxRuntimeError("INVALID_ARGUMENT: " + message)
+    at run time under jit.
 
     Tests `bad`, not `x`: inside jit even a concrete x gives a traced `bad`. Returns `x`, which
     under jit must be used in place of the input to keep the check alive."""
     if isinstance(bad, jax.core.Tracer):
-        return eqx.error_if(x, bad, message)
+        return raise_if(x, bad, message)
     if bool(bad):
         raise ValueError(message)
     return x

@@ -1,10 +1,14 @@
 """Reads the facts the shared checks in `diffblur.checks` need off torch tensors.
 
-Checks that look at the data (signs, finiteness) run in eager mode only: under `torch.compile`
-they are skipped (`torch.compiler.is_compiling()`), as the README's input policy says.
+Checks that look at the data (signs, finiteness) raise ValueError in eager mode. Under
+`torch.compile` they stay in the graph as `torch._assert_async` on CPU tensors (RuntimeError with
+the same message when the compiled code runs; no graph break, also with fullgraph=True) and are
+skipped on other devices, where a failed device-side assert would leave the CUDA context unusable.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import torch
 
@@ -41,22 +45,42 @@ def same_shape(name: str, x: torch.Tensor, reference_name: str, reference: torch
     same_dtype_and_device(name, x, reference_name, reference)
 
 
+def compiled_check(ok: torch.Tensor, message: str) -> bool:
+    """Under torch.compile, assert `ok` in the graph (CPU tensors; see the module docstring) and
+    return True: the caller's eager check is then not to run."""
+    if not torch.compiler.is_compiling():
+        return False
+    if ok.device.type == "cpu":
+        torch._assert_async(ok, message)
+    return True
+
+
+def require(ok_of: Callable[[], torch.Tensor], message: str) -> None:
+    """Raise ValueError(message) eagerly, or assert under torch.compile, unless `ok_of()` is true."""
+    ok = ok_of()
+    if not compiled_check(ok, message) and not bool(ok):
+        raise ValueError(message)
+
+
 def positive_values(name: str, x: torch.Tensor) -> None:
-    """Raise ValueError if any element is <= 0 or NaN (eager only)."""
-    if not torch.compiler.is_compiling() and not bool(torch.all(x > 0)):
-        raise ValueError(checks.nonpositive_message(name))
+    """Raise ValueError if any element is <= 0 or NaN."""
+    require(lambda: torch.all(x > 0), checks.nonpositive_message(name))
 
 
 def finite_values(name: str, x: torch.Tensor) -> None:
-    """Raise ValueError if any element is NaN or infinite (eager only).
+    """Raise ValueError if any element is NaN or infinite.
 
-    One sum screens the array: NaN or infinity anywhere makes it non-finite, and only a non-finite
-    sum (bad data, or huge finite values that overflow it) pays for the elementwise test, which
-    took ~5x the sum's time on a 1280x720 colour (the checks run on every call)."""
-    if torch.compiler.is_compiling() or bool(torch.isfinite(x.sum(dtype=torch.promote_types(x.dtype, torch.float32)))):
+    Eagerly one sum screens the array: NaN or infinity anywhere makes it non-finite, and only a
+    non-finite sum (bad data, or huge finite values that overflow it) pays for the elementwise
+    test, which took ~5x the sum's time on a 1280x720 colour (the checks run on every call)."""
+    message = checks.nonfinite_message(name)
+    if torch.compiler.is_compiling():
+        compiled_check(torch.isfinite(x).all(), message)
+        return
+    if bool(torch.isfinite(x.sum(dtype=torch.promote_types(x.dtype, torch.float32)))):
         return
     if not bool(torch.isfinite(x).all()):
-        raise ValueError(checks.nonfinite_message(name))
+        raise ValueError(message)
 
 
 def positive_scalar(name: str, value: object, like: torch.Tensor) -> float | torch.Tensor:

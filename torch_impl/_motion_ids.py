@@ -58,8 +58,7 @@ def velocity_from_motion_ids(
     palette_size, dims = palette.shape[1], palette.shape[2]
     if ids.device != palette.device:
         raise ValueError(f"ids must be on the device of palette ({palette.device}), got {ids.device}")
-    if not torch.compiler.is_compiling() and not bool(((ids >= 0) & (ids < palette_size)).all()):
-        raise ValueError(motion_ids.id_range_message(palette_size))
+    _checks.require(lambda: ((ids >= 0) & (ids < palette_size)).all(), motion_ids.id_range_message(palette_size))
     index = ids.reshape(batch, height * width, 1).long().expand(batch, height * width, dims)
     entry = torch.gather(palette, 1, index).permute(0, 2, 1).reshape(batch, dims, height, width)
     if dims == 2:
@@ -67,8 +66,7 @@ def velocity_from_motion_ids(
     _checks.same_dtype_and_device("depth", depth, "palette", palette)
     _checks.positive_values("depth", depth)
     vx, vy, vz = entry[:, 0:1], entry[:, 1:2], entry[:, 2:3]
-    if not torch.compiler.is_compiling() and not bool((vz.abs() < depth).all()):
-        raise ValueError(motion_ids.world_velocity_message())
+    _checks.require(lambda: (vz.abs() < depth).all(), motion_ids.world_velocity_message())
     x = torch.arange(width, dtype=palette.dtype, device=palette.device).reshape(1, 1, 1, width)
     y = torch.arange(height, dtype=palette.dtype, device=palette.device).reshape(1, 1, height, 1)
     denominator = depth * depth - vz * vz

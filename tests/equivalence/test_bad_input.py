@@ -101,8 +101,10 @@ def test_bad_input_raises_naming_the_argument(backend, call, exception, pattern)
         call(backend.ops, backend)
 
 
-# Under jax.jit the data checks go through equinox.error_if and raise at run time (EqxRuntimeError);
-# under torch.compile they are skipped (tests/torch/test_torch_primitives.py), as the README says.
+# Under jax.jit the data checks raise when the computation runs: XLA's JaxRuntimeError, whose text
+# is the library's message after XLA's status code (jax_impl/_runtime_error.py), the same under
+# eqx.filter_jit and through vmap and grad. Under torch.compile they raise RuntimeError with the
+# same message (CPU; tests/torch/test_compile_guards.py).
 JIT_BAD_CALLS = [
     ("gather NaN velocity", lambda o, c, v, z: o.gather_blur(c, v * np.nan, samples=3), r"velocity must be finite everywhere"),
     ("displacement inf", lambda o, c, v, z: o.velocity_from_motion(v * np.inf), r"displacement must be finite everywhere"),
@@ -119,5 +121,27 @@ def test_data_checks_raise_under_jax_jit(call, pattern):
     import jax_impl
 
     c, v, z = jnp.ones((1, 3, 4, 4)), jnp.ones((1, 2, 4, 4)), jnp.ones((1, 1, 4, 4))
-    with pytest.raises(Exception, match=pattern):
+    with pytest.raises(jax.errors.JaxRuntimeError, match="^INVALID_ARGUMENT: " + pattern) as raised:
         jax.block_until_ready(jax.jit(lambda c, v, z: call(jax_impl, c, v, z))(c, v, z))
+    assert "\n" not in str(raised.value)  # the message alone, no traceback
+
+
+def test_data_check_reads_the_same_under_filter_jit_vmap_and_grad():
+    jax = pytest.importorskip("jax")
+    eqx = pytest.importorskip("equinox")
+    import jax.numpy as jnp
+
+    import jax_impl
+
+    color = jnp.ones((2, 3, 4, 4))
+    velocity = jnp.ones((2, 2, 4, 4)).at[1, 0, 2, 2].set(jnp.nan)  # the second example only
+
+    def loss(c, v):
+        return jax_impl.gather_blur(c[None], v[None], samples=3).sum()
+
+    for run in (eqx.filter_jit(jax.vmap(loss)), jax.jit(jax.vmap(jax.grad(loss))), jax.jit(jax.checkpoint(jax.vmap(loss)))):
+        with pytest.raises(jax.errors.JaxRuntimeError, match="^INVALID_ARGUMENT: velocity must be finite everywhere"):
+            jax.block_until_ready(run(color, velocity))
+    # Valid data: the check adds nothing to the result.
+    good = jnp.ones_like(velocity)
+    assert jnp.array_equal(jax.jit(jax.vmap(loss))(color, good), jax.vmap(loss)(color, good))

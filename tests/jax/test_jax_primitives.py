@@ -1,5 +1,5 @@
-"""JAX specifics: jit, vmap and grad compose with the ops, data checks work under jit through
-equinox.error_if, NumPy input is accepted, dtypes are kept."""
+"""JAX specifics: jit, vmap and grad compose with the ops, data checks raise under jit with
+the library's message, NumPy input is accepted, dtypes are kept."""
 
 from __future__ import annotations
 

@@ -51,7 +51,7 @@ def test_warp_blend_chained_reads_stay_out_of_compiled_graphs(iterations):
         assert gathers == 0
 
 
-# A NaN velocity under torch.compile (which skips the data checks) made NaN tap positions, whose
+# A NaN velocity under torch.compile (which skipped the data checks, as it still does off the CPU) made NaN tap positions, whose
 # integer indices fell outside the image: eager aten raised, inductor's generated C++ aborted the
 # process ("index out of bounds: 0 <= tmp50 < 272" on a 16x17 image). The indices are now clamped.
 # The test skips the checks as torch.compile does and runs eagerly (an inductor compile is ~20 s of
@@ -73,10 +73,33 @@ NAN_CALLS = {
 def test_nan_velocity_with_the_checks_skipped_reads_inside_the_image(op, monkeypatch):
     from torch_impl import _checks
 
-    monkeypatch.setattr(_checks, "finite_values", lambda name, x: None)  # as under torch.compile
+    monkeypatch.setattr(_checks, "finite_values", lambda name, x: None)  # as under torch.compile on a GPU
     color = torch.rand(1, 3, 16, 17, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
     velocity = torch.ones(1, 2, 16, 17, dtype=torch.float64)
     velocity[0, 0, 5, 6] = float("nan")  # x only: with both, the wrapped index of NaN rows and columns happened to be 0
     out = NAN_CALLS[op](color, velocity)
     assert out.shape == color.shape
     assert torch.isfinite(out[..., :3, :]).all()  # rows the NaN pixel's taps cannot reach stay finite
+
+
+# Under torch.compile on CPU the data checks stay in the graph (torch._assert_async): bad data raises
+# RuntimeError with the eager message, also with fullgraph=True. aot_eager traces as inductor does
+# (dynamo, then AOTAutograd) without inductor's compile.
+COMPILED_BAD_CALLS = {
+    "gather NaN velocity": (lambda c, v, z: torch_impl.gather_blur(c, v * float("nan"), samples=3, fused=False), "velocity must be finite everywhere"),
+    "fused gather NaN velocity": (lambda c, v, z: torch_impl.gather_blur(c, v * float("nan"), samples=3, fused=True), "velocity must be finite everywhere"),
+    "reconstruct zero depth": (lambda c, v, z: torch_impl.reconstruct(c, v, z * 0.0, samples=3, max_radius=2.0), "depth must be > 0 everywhere"),
+    "scatter NaN colour": (lambda c, v, z: torch_impl.bezier_scatter(c * float("nan"), z, -v, v, samples=3), "color must be finite everywhere"),
+}
+
+
+@pytest.mark.parametrize("op", list(COMPILED_BAD_CALLS))
+def test_data_checks_raise_under_torch_compile_with_the_eager_message(op):
+    call, message = COMPILED_BAD_CALLS[op]
+    c, v, z = torch.ones(1, 3, 6, 7), torch.ones(1, 2, 6, 7), torch.ones(1, 1, 6, 7)
+    torch._dynamo.reset()
+    compiled = torch.compile(call, backend="aot_eager", fullgraph=True)
+    with pytest.raises(RuntimeError, match="^" + message):
+        compiled(c, v, z)
+    with pytest.raises(ValueError, match="^" + message):
+        call(c, v, z)
