@@ -61,6 +61,62 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _synth(args: argparse.Namespace) -> int:
+    import time
+
+    from diffblur.synth import SynthOptions, synthesize_folder
+
+    options = SynthOptions(
+        motions=tuple(args.motions.split(",")),
+        length=tuple(args.length),
+        shutters=tuple(args.shutters.split(",")),
+        response=args.response,
+        highlight_gain=tuple(args.highlight_gain),
+        shot_noise=tuple(args.shot_noise),
+        read_noise=tuple(args.read_noise),
+        jpeg_quality=None if args.jpeg is None else tuple(args.jpeg),
+        exposure=args.exposure,
+    )
+    start = time.perf_counter()
+    records = synthesize_folder(args.in_dir, args.out_dir, seed=args.seed, options=options, segmentation=args.segmentation, sequence=args.sequence, estimate_flows=args.estimate_flow, workers=args.workers)
+    made = [r for r in records if "skipped" not in r]
+    for record in records:
+        if "skipped" in record:
+            print(f"skipped {record['source']}: {record['skipped']}", file=sys.stderr)
+    print(f"wrote {len(made)} pairs to {args.out_dir} in {time.perf_counter() - start:.1f} s")
+    return 0
+
+
+def _add_synth_parser(commands) -> None:
+    from diffblur.shutters import SHUTTERS
+    from diffblur.synth import MOTIONS
+
+    synth = commands.add_parser(
+        "synth",
+        help="blurred/sharp pairs from sharp photographs, for deblurring datasets",
+        description="For each image of IN_DIR: a seeded random motion, a camera model around the blur (inverse sRGB response, "
+        "highlights past white, blur, saturation, Poisson-Gaussian noise, response, optional JPEG); writes NAME_sharp.png, "
+        "NAME_blurred.png (.jpg) and NAME.json with every parameter (diffblur.synth.reproduce makes the pair again).",
+    )
+    synth.add_argument("in_dir", help="folder of sharp photographs (or of a sequence's frames with --sequence)")
+    synth.add_argument("out_dir", help="folder for the pairs")
+    synth.add_argument("--seed", type=int, default=0, help="seed of every random choice (default: 0)")
+    synth.add_argument("--motions", default="pan,shake", help=f"comma-separated, drawn per image: {', '.join(MOTIONS)} (objects needs --segmentation) (default: pan,shake)")
+    synth.add_argument("--length", type=float, nargs=2, default=(4.0, 30.0), metavar=("LOW", "HIGH"), help="path length over the exposure, px (default: 4 30)")
+    synth.add_argument("--shutters", default="box", help=f"comma-separated, drawn per image: {', '.join(SHUTTERS)} (default: box)")
+    synth.add_argument("--response", default="srgb", choices=("srgb", "linear"), help="camera response around the blur (default: srgb)")
+    synth.add_argument("--highlight-gain", type=float, nargs=2, default=(1.0, 4.0), metavar=("LOW", "HIGH"), help="brightness of clipped highlights, times white (default: 1 4)")
+    synth.add_argument("--shot-noise", type=float, nargs=2, default=(0.0, 0.01), metavar=("LOW", "HIGH"), help="Poisson part of the noise variance, per unit of linear light (default: 0 0.01)")
+    synth.add_argument("--read-noise", type=float, nargs=2, default=(0.0, 0.01), metavar=("LOW", "HIGH"), help="Gaussian noise sigma, linear light (default: 0 0.01)")
+    synth.add_argument("--jpeg", type=int, nargs=2, default=None, metavar=("LOW", "HIGH"), help="JPEG quality range of the blurred image (default: PNG, no JPEG)")
+    synth.add_argument("--segmentation", default=None, help="folder of NAME.png label pictures (0 = background): motion 'objects' gives each label its own motion")
+    synth.add_argument("--sequence", action="store_true", help="IN_DIR holds a sequence's frames: blur each frame along its flows (NAME.prev.flo and NAME.next.flo next to it)")
+    synth.add_argument("--estimate-flow", action="store_true", help="with --sequence, estimate missing flows from the neighbouring frames (needs the 'flow' extra: OpenCV)")
+    synth.add_argument("--exposure", type=float, default=1.0, help="with --sequence, the fraction of the frame interval the shutter is open (default: 1)")
+    synth.add_argument("--workers", type=int, default=1, help="processes (default: 1)")
+    synth.set_defaults(run=_synth)
+
+
 def _add_fit(commands) -> None:
     """`diffblur fit` (fitting/cli.py); its module imports no framework until a fit runs."""
     from fitting.cli import add_fit_parser
@@ -95,6 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--targets", action=argparse.BooleanOptionalAction, default=None, help="run the 1280x720 performance targets (default: unless --quick)")
     bench.set_defaults(run=_bench)
     _add_blur_parser(commands)
+    _add_synth_parser(commands)
     return parser
 
 
