@@ -64,6 +64,16 @@ class TorchAdapter:
         """f itself: PyTorch runs eagerly."""
         return f
 
+    def per_candidate(self, f: Callable[..., Any]) -> Callable[..., Any]:
+        """(stacked, *args) -> f of each candidate's parameters (stacked: dict of (n, ...) arrays),
+        concatenated along the batch axis: a loop."""
+
+        def each(stacked: dict, *args: Any) -> Any:
+            count = next(iter(stacked.values())).shape[0]
+            return self.torch.cat([f({k: v[i] for k, v in stacked.items()}, *args) for i in range(count)])
+
+        return each
+
 
 class JaxAdapter:
     name = "jax"
@@ -136,9 +146,23 @@ class JaxAdapter:
         by one costs more than compiling it."""
         return _compiled(f, gradient=False)
 
+    def per_candidate(self, f: Callable[..., Any]) -> Callable[..., Any]:
+        """(stacked, *args) -> f of each candidate's parameters (stacked: dict of (n, ...) arrays),
+        concatenated along the batch axis: one compiled, vmapped call (calling a compiled f per
+        candidate cost the search about 1.4 ms of dispatch each, most of a small fit's time)."""
+        if (f, "per_candidate") not in _COMPILED:
+            import equinox as eqx
+
+            def each(stacked: dict, *args: Any) -> Any:
+                out = eqx.filter_vmap(f, in_axes=(0,) + (None,) * len(args))(stacked, *args)
+                return out.reshape((out.shape[0] * out.shape[1],) + out.shape[2:])
+
+            _COMPILED[(f, "per_candidate")] = eqx.filter_jit(each)
+        return _COMPILED[(f, "per_candidate")]
+
 
 #: eqx.filter_jit of each function `JaxAdapter.value_and_grad` was given, by function.
-_COMPILED: dict[tuple[Callable[..., Any], bool], Callable[..., Any]] = {}
+_COMPILED: dict[tuple[Callable[..., Any], bool | str], Callable[..., Any]] = {}
 
 
 def _compiled(f: Callable[..., Any], *, gradient: bool) -> Callable[..., Any]:

@@ -312,13 +312,14 @@ def layered_scatter(ctx: Context, motion: Any, *, hidden_share: bool = False) ->
     return out + through * stack.fill
 
 
-def render_batch(ctx: Context, motions: list) -> Any:
-    """(n, C, h, w): the configured op on n models' motions (`Model.motion`) at once, the images repeated."""
-    n = len(motions)
+def render_batch(ctx: Context, motions: Any) -> Any:
+    """(n, C, h, w): the configured op on n models' motions (`Model.motion`, concatenated along the
+    batch axis) at once, the images repeated."""
+    n = motions.shape[0]
     if ctx.extras.get("layers") is not None:
-        return layered_scatter(ctx, ctx.be.concat(motions))
+        return layered_scatter(ctx, motions)
     batch = Context(ctx.be, ctx.be.concat([ctx.color] * n), ctx.be.concat([ctx.depth] * n), ctx.target, ctx.height, ctx.width, ctx.scale, ctx.options, ctx.extras)
-    return _blur(batch, ctx.be.concat(motions))
+    return _blur(batch, motions)
 
 
 class Model:

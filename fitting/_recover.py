@@ -161,16 +161,14 @@ def _render(p: dict, ctx: _models.Context, traced: Traced) -> Any:
     return traced.model.render(p, ctx)
 
 
-def _candidate_errors(chunk: list[dict], ctx: _models.Context, traced: Traced, crop: int) -> Any:
-    """(n,) mean squared weighted, cropped data residual of each candidate of `chunk`."""
+def _candidate_errors(stacked: dict, ctx: _models.Context, traced: Traced, crop: int) -> Any:
+    """(n,) mean squared weighted, cropped data residual of each candidate (`stacked`: each
+    parameter's n values along a first axis)."""
     fit_model, be = traced.model, ctx.be
     if fit_model.batched:
-        # Each candidate's motion field compiled once (JAX): the search makes hundreds, and op by op
-        # each cost JAX about ten times PyTorch's dispatch.
-        motion = be.compiled(_motion)
-        rendered = _models.render_batch(ctx, [motion(p, ctx, traced) for p in chunk])
+        rendered = _models.render_batch(ctx, be.per_candidate(_motion)(stacked, ctx, traced))
     else:
-        rendered = be.concat([fit_model.render(p, ctx) for p in chunk])
+        rendered = be.per_candidate(_render)(stacked, ctx, traced)
     error = ((rendered - ctx.target) * ctx.extras["weight"])[:, :, crop : ctx.height - crop, crop : ctx.width - crop]
     return (error * error).reshape(error.shape[0], -1).mean(1)
 
@@ -220,8 +218,9 @@ def _losses(fit_model: _models.Model, ctx: _models.Context, candidates: list[dic
         # Every chunk as long as the first (the last one padded with its own last candidate), so that
         # JAX compiles the search once.
         size = min(len(candidates), SEARCH_BATCH)
-        padded = [{k: be.array(v) for k, v in c.items()} for c in chunk + [chunk[-1]] * (size - len(chunk))]
-        out.append(be.numpy(be.run(_candidate_errors, padded, ctx, Traced(fit_model), crop))[: len(chunk)])
+        padded = chunk + [chunk[-1]] * (size - len(chunk))
+        stacked = {k: be.array(np.stack([np.asarray(c[k], dtype=np.float64) for c in padded])) for k in chunk[0]}
+        out.append(be.numpy(be.run(_candidate_errors, stacked, ctx, Traced(fit_model), crop))[: len(chunk)])
     return np.concatenate(out)
 
 

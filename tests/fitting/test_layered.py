@@ -80,7 +80,7 @@ def test_the_nearer_object_stays_in_front_where_paths_cross(crossing):
     layered, _ = _context(be, crossing, layered=True)
     errors = {}
     for name, ctx, motion in (("plain", plain, be.array(crossing.velocity)), ("layered", layered, _per_layer(layered, ids, crossing))):
-        error = ((be.numpy(_models.render_batch(ctx, [motion])) - crossing.target) ** 2).mean(axis=1)[0]
+        error = ((be.numpy(_models.render_batch(ctx, motion)) - crossing.target) ** 2).mean(axis=1)[0]
         errors[name] = (float(error[15:23, 15:25].mean()), float(error.mean()))
     assert errors["layered"][0] * 1.5 < errors["plain"][0], errors
     assert errors["layered"][1] < errors["plain"][1], errors
