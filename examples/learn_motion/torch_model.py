@@ -1,0 +1,143 @@
+"""The PyTorch model: a small U-Net predicts per-pixel motion from two sharp frames, and the library's
+`torch_impl.MotionBlur` layer blurs the middle frame with it. Trained only against the blurred target.
+
+`jax_model.py` is the same architecture in Equinox; `copy_to_jax` there moves these weights across.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+import torch_impl
+from examples.learn_motion.common import (
+    BLUR_OPTIONS,
+    LEVELS,
+    MOTION_CHANNELS,
+    TrainConfig,
+    batches,
+    check_size,
+    learning_rate,
+    motion_paths,
+)
+from examples.learn_motion.data import SHUTTERS
+
+__all__ = ["MotionNet", "UNet", "predict", "train"]
+
+
+class _Block(nn.Sequential):
+    """Two 3x3 convolutions, each followed by a ReLU."""
+
+    def __init__(self, cin: int, cout: int):
+        super().__init__(nn.Conv2d(cin, cout, 3, padding=1), nn.ReLU(), nn.Conv2d(cout, cout, 3, padding=1), nn.ReLU())
+
+
+class UNet(nn.Module):
+    """frames (B, 6, H, W) -> motion (B, out, H, W), H and W multiples of 2^LEVELS.
+
+    Encoder: a block per level with widths width * (1, 2, 4, 4), 2x2 average pooling between them;
+    decoder: nearest 2x upsampling, concatenation with the encoder's features of that size, a block;
+    a 1x1 head scaled by `scale` (pixels)."""
+
+    def __init__(self, out: int, *, width: int = 16, scale: float = 4.0, inputs: int = 6):
+        super().__init__()
+        widths = [width * min(2**k, 4) for k in range(LEVELS + 1)]
+        self.down = nn.ModuleList([_Block(inputs, widths[0])] + [_Block(widths[k - 1], widths[k]) for k in range(1, LEVELS + 1)])
+        self.up = nn.ModuleList([_Block(widths[k + 1] + widths[k], widths[k]) for k in reversed(range(LEVELS))])
+        self.head = nn.Conv2d(widths[0], out, 1)
+        self.scale = scale
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        skips = []
+        x = frames
+        for k, block in enumerate(self.down):
+            if k:
+                x = F.avg_pool2d(x, 2)
+            x = block(x)
+            skips.append(x)
+        for block, skip in zip(self.up, reversed(skips[:-1])):
+            x = block(torch.cat([F.interpolate(x, scale_factor=2, mode="nearest"), skip], dim=1))
+        return self.scale * self.head(x)
+
+
+class MotionNet(nn.Module):
+    """The U-Net and one `MotionBlur` layer per shutter window of `data.SHUTTERS` (a batch shares one).
+
+    method: "bezier" (the curve scatter), "gather" or "reconstruct"; motion: "offsets" (the U-Net
+    predicts p(-1) - X and p(+1) - X, a curved path through the middle frame; bezier only) or
+    "velocity" (the half-spread V, the segment X - V ... X + V). The blur runs in the colour's dtype
+    (under autocast the U-Net runs in bfloat16, the blur in float32)."""
+
+    def __init__(self, method: str = "bezier", motion: str = "offsets", *, width: int = 16, scale: float = 4.0):
+        super().__init__()
+        self.method, self.motion = method, motion
+        self.unet = UNet(MOTION_CHANNELS[motion], width=width, scale=scale)
+        self.blurs = nn.ModuleList([torch_impl.MotionBlur(method, shutter=window, **BLUR_OPTIONS[method]) for window in SHUTTERS])
+
+    def forward(self, frames: torch.Tensor, color: torch.Tensor, depth: torch.Tensor, shutter: int = 0, motion: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(blurred middle frame (B, 3, H, W), predicted motion (B, 2 or 4, H, W)); a given `motion`
+        replaces the U-Net's (the report blurs by the true motion through the same layers)."""
+        check_size(frames.shape[-2:])
+        if motion is None:
+            motion = self.unet(frames).to(color.dtype)
+        paths = motion_paths(self.method, self.motion, motion)
+        return self.blurs[shutter](color, paths.pop("velocity", None), depth if self.method != "gather" else None, **paths), motion
+
+
+def _tensors(arrays: dict, device, index=slice(None)) -> tuple[torch.Tensor, ...]:
+    return tuple(torch.from_numpy(np.ascontiguousarray(arrays[name][index])).to(device) for name in ("frames", "color", "depth", "target"))
+
+
+def train(data: dict, config: TrainConfig, *, device: str = "cpu", log=print) -> tuple[MotionNet, dict]:
+    """Adam on the mean squared error against the blurred target, for config.minutes or config.steps,
+    whichever ends first; the learning rate follows `common.learning_rate`. Returns the model and a
+    history (steps, seconds, loss per logged step)."""
+    torch.manual_seed(config.seed)
+    model = MotionNet(config.method, config.motion, width=config.width, scale=config.scale).to(device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+    history = {"step": [], "seconds": [], "loss": []}
+    started = time.perf_counter()
+    step, running = 0, []
+    for step, (arrays, shutter) in enumerate(batches(data, config), start=1):
+        progress = max(step / config.steps, (time.perf_counter() - started) / (60 * config.minutes))
+        for group in optimizer.param_groups:
+            group["lr"] = learning_rate(config.lr, progress)
+        frames, color, depth, target = _tensors(arrays, device)
+        blurred, _ = model(frames, color, depth, shutter)
+        loss = ((blurred - target) ** 2).mean()
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        running.append(loss.item())
+        if step % config.log_every == 0 or progress >= 1:
+            seconds = time.perf_counter() - started
+            history["step"].append(step), history["seconds"].append(seconds), history["loss"].append(float(np.mean(running)))
+            if log is not None:
+                log(f"torch step {step:5d}  {seconds:6.0f} s  loss {np.mean(running):.3e}  lr {learning_rate(config.lr, progress):.1e}")
+            running = []
+        if progress >= 1:
+            break
+    history["steps"], history["train_seconds"] = step, time.perf_counter() - started
+    return model, history
+
+
+@torch.no_grad()
+def predict(model: MotionNet, data: dict, *, motion: np.ndarray | None = None, batch: int = 16, device: str = "cpu") -> tuple[np.ndarray, np.ndarray]:
+    """The model on every example (grouped by shutter): (blurred (N, 3, H, W), motion (N, 2 or 4, H, W)).
+    With `motion` (N, 2 or 4, H, W), the layers blur by it instead of the U-Net's."""
+    count = len(data["shutter"])
+    blurred = np.zeros(data["color"].shape, np.float32)
+    out_motion = np.zeros((count, MOTION_CHANNELS[model.motion]) + data["color"].shape[2:], np.float32)
+    for shutter in np.unique(data["shutter"]):
+        members = np.flatnonzero(data["shutter"] == shutter)
+        for start in range(0, len(members), batch):
+            index = members[start : start + batch]
+            frames, color, depth, _ = _tensors(data, device, index)
+            given = None if motion is None else torch.from_numpy(np.ascontiguousarray(motion[index], dtype=np.float32)).to(device)
+            out, predicted = model(frames, color, depth, int(shutter), given)
+            blurred[index], out_motion[index] = out.float().cpu().numpy(), predicted.float().cpu().numpy()
+    return blurred, out_motion
