@@ -9,10 +9,19 @@ from typing import Iterator
 
 import numpy as np
 
-__all__ = ["BLUR_OPTIONS", "LEVELS", "MIRROR", "MOTION_CHANNELS", "TrainConfig", "augment", "batches", "check_size", "learning_rate", "motion_paths"]
+__all__ = ["BLUR_OPTIONS", "CANDIDATES", "INPUTS", "LEVELS", "RADIUS", "SHARPNESS", "MIRROR", "MOTION_CHANNELS", "TrainConfig", "augment", "batches", "check_size", "learning_rate", "motion_paths"]
 
 #: Poolings in the U-Net: H and W must be multiples of 2^LEVELS.
 LEVELS = 3
+#: Block matching's search radius (pixels of half-spread, each way in x and y) and sharpness: the
+#: motion starts from a soft-argmin over (2 RADIUS + 1)^2 candidate velocities (`CANDIDATES`).
+RADIUS = 4
+SHARPNESS = 100.0
+#: The candidate half-spreads (K, 2), x then y, x fastest.
+CANDIDATES = np.array([(dx, dy) for dy in range(-RADIUS, RADIUS + 1) for dx in range(-RADIUS, RADIUS + 1)], dtype=np.float32)
+#: The U-Net's input channels: the two frames, block matching's velocity (/ RADIUS) and its confidence.
+INPUTS = 6 + 2 + 1
+
 #: Channels the U-Net predicts per way of giving the motion.
 MOTION_CHANNELS = {"offsets": 4, "velocity": 2}
 #: The layer's options per method. The scatter fills the time nothing covers a moving pixel with its
@@ -32,10 +41,12 @@ class TrainConfig:
 
     method: str = "bezier"
     motion: str = "offsets"
-    width: int = 16
-    scale: float = 4.0
+    width: int = 8
+    scale: float = 2.0
+    #: Add the U-Net's output to block matching's straight path (True) or take it as the motion.
+    residual: bool = True
     batch: int = 8
-    lr: float = 2e-3
+    lr: float = 1e-3
     minutes: float = 4.0
     steps: int = 100_000
     seed: int = 0
@@ -65,6 +76,11 @@ def learning_rate(peak: float, progress: float) -> float:
     progress = min(max(progress, 0.0), 1.0)
     warm = min(1.0, progress / 0.03)
     return peak * warm * (0.05 + 0.95 * 0.5 * (1.0 + math.cos(math.pi * progress)))
+
+
+def linear_motion(motion: str, velocity, concatenate):
+    """Block matching's velocity as the network's base motion: offsets (-v, +v) or v itself."""
+    return concatenate([-velocity, velocity]) if motion == "offsets" else velocity
 
 
 def motion_paths(method: str, motion: str, predicted) -> dict:

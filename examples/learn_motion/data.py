@@ -8,7 +8,7 @@ shutter window (`target`). The true motion of the point seen at each pixel of th
 reads it.
 
 A scene: a textured background at depth 10-20, still or panned by the camera, and 1-3 objects
-(disks, rounded boxes; photographs, checkers or stripes) at depths 2-6, each moving on a straight
+(disks, rounded boxes; photographs, or checkers or stripes with periods of 14-28 px) at depths 2-6, each moving on a straight
 line (`Translation`) or a parabola (`CurvedPath`, bending by up to 0.45 of its speed). Half-spread
 speeds are up to `max_speed` pixels (default size / 12). Each example draws its shutter from
 `SHUTTERS`: two symmetric windows and two linear ramps (a ramp makes the direction of motion show
@@ -56,12 +56,14 @@ _COLORS = ((0.9, 0.75, 0.1), (0.1, 0.2, 0.6), (0.8, 0.15, 0.1), (0.15, 0.6, 0.2)
 
 def _texture(rng: np.random.Generator, height: int, width: int, *, periodic: bool) -> np.ndarray:
     """(height, width, 3) linear colour: a photograph crop, or (periodic=True) sometimes checkers or stripes."""
-    kind = rng.integers(3) if periodic else 0
+    kind = rng.integers(4) if periodic else 0
+    kind = max(kind - 1, 0)  # periodic=True: a photograph half the time, else checkers or stripes
     if kind == 0:
         name = PHOTOS[rng.integers(len(PHOTOS))]
         return photo(name, height, width, zoom=float(rng.uniform(1.0, 2.5)), focus=(float(rng.uniform(0.3, 0.7)), float(rng.uniform(0.3, 0.7))))
     a, b = rng.choice(len(_COLORS), size=2, replace=False)
-    period = float(rng.uniform(5.0, 12.0))
+    # Periods of 14-28 px: a finer periodic texture matches itself one period away (many minima).
+    period = float(rng.uniform(14.0, 28.0))
     draw = checkers if kind == 1 else stripes
     return draw(height, width, period, _COLORS[a], _COLORS[b], angle=float(rng.uniform(0, math.pi)))
 
@@ -146,7 +148,7 @@ def _generate(seed: int, count: int, size: int, max_speed: float | None) -> dict
 def dataset(seed: int, count: int, size: int, *, max_speed: float | None = None, cache: str | Path | None = None, log=print) -> dict[str, np.ndarray]:
     """`count` examples at size x size drawn from `seed` (FIELDS). With `cache` (a folder), the arrays are
     kept there in an .npz named by the arguments and read back on the next call."""
-    key = json.dumps({"seed": seed, "count": count, "size": size, "max_speed": max_speed, "version": 1}, sort_keys=True)
+    key = json.dumps({"seed": seed, "count": count, "size": size, "max_speed": max_speed, "version": 2}, sort_keys=True)
     path = None
     if cache is not None:
         path = Path(cache) / f"learn_motion_{hashlib.sha256(key.encode()).hexdigest()[:16]}.npz"

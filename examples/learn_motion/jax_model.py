@@ -16,10 +16,10 @@ import numpy as np
 import optax
 
 import jax_impl
-from examples.learn_motion.common import BLUR_OPTIONS, LEVELS, MOTION_CHANNELS, TrainConfig, batches, check_size, learning_rate, motion_paths
+from examples.learn_motion.common import BLUR_OPTIONS, CANDIDATES, INPUTS, LEVELS, RADIUS, SHARPNESS, linear_motion, MOTION_CHANNELS, TrainConfig, batches, check_size, learning_rate, motion_paths
 from examples.learn_motion.data import SHUTTERS
 
-__all__ = ["MotionNet", "UNet", "from_torch", "loss_fn", "predict", "train", "train_step"]
+__all__ = ["MotionNet", "UNet", "block_matching", "from_torch", "loss_fn", "make_model", "matching_costs", "predict", "train", "train_step"]
 
 
 class _Block(eqx.Module):
@@ -46,27 +46,50 @@ def _upsample(x):
     return jnp.repeat(jnp.repeat(x, 2, axis=1), 2, axis=2)
 
 
+def matching_costs(frames, radius: int = RADIUS):
+    """`torch_model.matching_costs` for one example: frames (6, H, W) -> ((2 radius + 1)^2, H, W)."""
+    height, width = frames.shape[-2:]
+    pad = ((0, 0), (radius, radius), (radius, radius))
+    before, after = jnp.pad(frames[:3], pad, mode="edge"), jnp.pad(frames[3:], pad, mode="edge")
+    costs = []
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            a = before[:, radius - dy : radius - dy + height, radius - dx : radius - dx + width]
+            b = after[:, radius + dy : radius + dy + height, radius + dx : radius + dx + width]
+            costs.append(-jnp.mean(jnp.abs(a - b), axis=0, keepdims=True))
+    return jnp.concatenate(costs, axis=0)
+
+
+def block_matching(frames):
+    """`torch_model.block_matching` for one example: (velocity (2, H, W), confidence (1, H, W))."""
+    costs = matching_costs(frames)
+    weights = jax.nn.softmax(SHARPNESS * costs, axis=0)
+    velocity = jnp.einsum("khw,kc->chw", weights, jnp.asarray(CANDIDATES, dtype=weights.dtype))
+    return velocity, jnp.max(costs, axis=0, keepdims=True)
+
+
 class UNet(eqx.Module):
-    """frames (6, H, W) -> motion (out, H, W): `torch_model.UNet`'s architecture, one example."""
+    """inputs (INPUTS, H, W) -> (out, H, W): `torch_model.UNet`'s architecture, one example (the head
+    zero at initialisation)."""
 
     down: list
     up: list
     head: eqx.nn.Conv2d
     scale: float = eqx.field(static=True)
 
-    def __init__(self, out: int, *, width: int = 16, scale: float = 4.0, inputs: int = 6, key, dtype=jnp.float32):
+    def __init__(self, out: int, *, width: int = 16, scale: float = 4.0, inputs: int = INPUTS, key, dtype=jnp.float32):
         widths = [width * min(2**k, 4) for k in range(LEVELS + 1)]
         keys = jax.random.split(key, 2 * LEVELS + 2)
         self.down = [_Block(inputs, widths[0], key=keys[0], dtype=dtype)] + [
             _Block(widths[k - 1], widths[k], key=keys[k], dtype=dtype) for k in range(1, LEVELS + 1)
         ]
         self.up = [_Block(widths[k + 1] + widths[k], widths[k], key=keys[LEVELS + 1 + i], dtype=dtype) for i, k in enumerate(reversed(range(LEVELS)))]
-        self.head = eqx.nn.Conv2d(widths[0], out, 1, key=keys[-1], dtype=dtype)
+        head = eqx.nn.Conv2d(widths[0], out, 1, key=keys[-1], dtype=dtype)
+        self.head = eqx.tree_at(lambda c: (c.weight, c.bias), head, (jnp.zeros_like(head.weight), jnp.zeros_like(head.bias)))
         self.scale = scale
 
-    def __call__(self, frames):
+    def __call__(self, x):
         skips = []
-        x = frames
         for k, block in enumerate(self.down):
             x = block(_pool(x) if k else x)
             skips.append(x)
@@ -76,16 +99,17 @@ class UNet(eqx.Module):
 
 
 class MotionNet(eqx.Module):
-    """`torch_model.MotionNet` in Equinox: the U-Net (vmapped over the batch) and one
-    `jax_impl.MotionBlur` per window of `data.SHUTTERS`; a batch shares one (a static int)."""
+    """`torch_model.MotionNet` in Equinox: block matching and the U-Net (vmapped over the batch) and
+    one `jax_impl.MotionBlur` per window of `data.SHUTTERS`; a batch shares one (a static int)."""
 
     unet: UNet
     blurs: tuple
     method: str = eqx.field(static=True)
     motion: str = eqx.field(static=True)
+    residual: bool = eqx.field(static=True)
 
-    def __init__(self, method: str = "bezier", motion: str = "offsets", *, width: int = 16, scale: float = 4.0, key, dtype=jnp.float32):
-        self.method, self.motion = method, motion
+    def __init__(self, method: str = "bezier", motion: str = "offsets", *, width: int = 8, scale: float = 2.0, residual: bool = True, key, dtype=jnp.float32):
+        self.method, self.motion, self.residual = method, motion, residual
         self.unet = UNet(MOTION_CHANNELS[motion], width=width, scale=scale, key=key, dtype=dtype)
         self.blurs = tuple(jax_impl.MotionBlur(method, shutter=window, **BLUR_OPTIONS[method]) for window in SHUTTERS)
 
@@ -94,15 +118,24 @@ class MotionNet(eqx.Module):
         replaces the U-Net's."""
         check_size(frames.shape[-2:])
         if motion is None:
-            motion = jax.vmap(self.unet)(frames).astype(color.dtype)
+            motion = jax.vmap(self.motion_from)(frames).astype(color.dtype)
         paths = motion_paths(self.method, self.motion, motion)
         return self.blurs[shutter](color, paths.pop("velocity", None), depth if self.method != "gather" else None, **paths), motion
+
+
+    def motion_from(self, frames):
+        """One example's motion (4 or 2, H, W): block matching's, corrected by the U-Net."""
+        velocity, confidence = block_matching(frames)
+        correction = self.unet(jnp.concatenate([frames, velocity / RADIUS, 10.0 * confidence], axis=0))
+        if not self.residual:
+            return correction
+        return linear_motion(self.motion, velocity, lambda parts: jnp.concatenate(parts, axis=0)) + correction
 
 
 def from_torch(state: dict, config: TrainConfig, dtype=jnp.float32) -> MotionNet:
     """A MotionNet holding a PyTorch MotionNet's weights: `state` maps the torch parameter names
     (`model.state_dict()` as NumPy arrays) to arrays."""
-    model = MotionNet(config.method, config.motion, width=config.width, scale=config.scale, key=jax.random.key(0), dtype=dtype)
+    model = MotionNet(config.method, config.motion, width=config.width, scale=config.scale, residual=config.residual, key=jax.random.key(0), dtype=dtype)
 
     def conv(prefix: str, layer: eqx.nn.Conv2d) -> eqx.nn.Conv2d:
         weight = jnp.asarray(state[f"{prefix}.weight"], dtype=dtype)
@@ -138,9 +171,14 @@ def make_optimizer(lr: float):
     return optax.inject_hyperparams(optax.adam)(learning_rate=lr)
 
 
+def make_model(config: TrainConfig, dtype=jnp.float32) -> MotionNet:
+    """The model before training (seeded by config.seed)."""
+    return MotionNet(config.method, config.motion, width=config.width, scale=config.scale, residual=config.residual, key=jax.random.key(config.seed), dtype=dtype)
+
+
 def train(data: dict, config: TrainConfig, *, log=print, dtype=jnp.float32) -> tuple[MotionNet, dict]:
     """`torch_model.train` in JAX: the same batches (same seed), schedule and stopping rule."""
-    model = MotionNet(config.method, config.motion, width=config.width, scale=config.scale, key=jax.random.key(config.seed), dtype=dtype)
+    model = make_model(config, dtype)
     optimizer = make_optimizer(config.lr)
     state = optimizer.init(eqx.filter(model, eqx.is_inexact_array))
     history = {"step": [], "seconds": [], "loss": []}

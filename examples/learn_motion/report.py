@@ -15,6 +15,7 @@ ROWS = {
     "average": "(b) average of the two input frames",
     "network": "(c) blur from the network's motion",
     "true": "(d) blur from the true motion, same op",
+    "initial": "(e) the same model before training (block matching alone)",
 }
 #: Pixels whose true half-spread is above this (px) count as moving for the "moving" endpoint error.
 MOVING = 0.5
@@ -35,9 +36,10 @@ def _endpoint_error(predicted: np.ndarray, true: np.ndarray, mask: np.ndarray | 
     return float(distance.mean() if mask is None else distance[mask].mean())
 
 
-def evaluate(data: dict, network_blur: np.ndarray, network_motion: np.ndarray, true_blur: np.ndarray, motion: str) -> dict:
+def evaluate(data: dict, network_blur: np.ndarray, network_motion: np.ndarray, true_blur: np.ndarray, motion: str, *, initial: tuple | None = None) -> dict:
     """PSNR (dB) and SSIM, means over the scenes, of each of ROWS against the target; endpoint errors
-    (px) of the network's motion and of no motion at all, over every pixel and over the moving ones."""
+    (px) of the network's motion and of no motion at all, over every pixel and over the moving ones.
+    initial: (blur, motion) of the model before training, for row (e)."""
     target = data["target"].astype(np.float64)
     frames = data["frames"].astype(np.float64)
     images = {
@@ -46,6 +48,8 @@ def evaluate(data: dict, network_blur: np.ndarray, network_motion: np.ndarray, t
         "network": network_blur,
         "true": true_blur,
     }
+    if initial is not None:
+        images["initial"] = initial[0]
     rows = {}
     for name, image in images.items():
         image = np.clip(np.asarray(image, dtype=np.float64), 0.0, None)
@@ -54,14 +58,17 @@ def evaluate(data: dict, network_blur: np.ndarray, network_motion: np.ndarray, t
     velocity = 0.5 * (data["offset_next"] - data["offset_prev"])
     moving = np.hypot(velocity[:, 0], velocity[:, 1]) > MOVING
     zero = np.zeros_like(true)
+    errors = {
+        "network": _endpoint_error(network_motion, true),
+        "network_moving": _endpoint_error(network_motion, true, moving),
+        "zero_motion": _endpoint_error(zero, true),
+        "zero_motion_moving": _endpoint_error(zero, true, moving),
+    }
+    if initial is not None:
+        errors.update(initial=_endpoint_error(initial[1], true), initial_moving=_endpoint_error(initial[1], true, moving))
     return {
         "rows": rows,
-        "endpoint_error": {
-            "network": _endpoint_error(network_motion, true),
-            "network_moving": _endpoint_error(network_motion, true, moving),
-            "zero_motion": _endpoint_error(zero, true),
-            "zero_motion_moving": _endpoint_error(zero, true, moving),
-        },
+        "endpoint_error": errors,
         "scenes": int(len(target)),
         "moving_fraction": float(moving.mean()),
     }
@@ -75,7 +82,9 @@ def markdown(results: dict, label: str = "") -> str:
     tail = (
         f"\nEndpoint error of the learned motion: {epe['network']:.2f} px over all pixels, {epe['network_moving']:.2f} px "
         f"over the moving ones ({100 * results['moving_fraction']:.0f} % of the pixels, true half-spread > {MOVING} px); "
-        f"predicting no motion: {epe['zero_motion']:.2f} px and {epe['zero_motion_moving']:.2f} px.\n"
+        f"predicting no motion: {epe['zero_motion']:.2f} px and {epe['zero_motion_moving']:.2f} px"
+        + (f"; the model before training: {epe['initial']:.2f} px and {epe['initial_moving']:.2f} px" if "initial" in epe else "")
+        + ".\n"
     )
     return head + body + tail
 

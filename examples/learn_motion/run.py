@@ -65,7 +65,7 @@ def run(
         if threads:
             torch.set_num_threads(threads)
         model, history = impl.train(train, config, device=device, log=log)
-        model.eval()
+        initial_blur, initial_motion = impl.predict(impl.make_model(config, device), test, device=device)
         predicted_blur, predicted_motion = impl.predict(model, test, device=device)
         true_blur, _ = impl.predict(model, test, motion=true_motion(test, config.motion), device=device)
         versions = {"torch": torch.__version__}
@@ -75,13 +75,14 @@ def run(
         from examples.learn_motion import jax_model as impl
 
         model, history = impl.train(train, config, log=log)
+        initial_blur, initial_motion = impl.predict(impl.make_model(config), test)
         predicted_blur, predicted_motion = impl.predict(model, test)
         true_blur, _ = impl.predict(model, test, motion=true_motion(test, config.motion))
         device = str(jax.devices()[0].platform)
         versions = {"jax": jax.__version__}
     else:
         raise ValueError(f"framework must be 'torch' or 'jax', got {framework!r}")
-    results = evaluate(test, predicted_blur, predicted_motion, true_blur, config.motion)
+    results = evaluate(test, predicted_blur, predicted_motion, true_blur, config.motion, initial=(initial_blur, initial_motion))
     results.update(
         framework=framework,
         device=device,
@@ -120,8 +121,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--train-scenes", type=int, default=768)
     parser.add_argument("--test-scenes", type=int, default=32)
     parser.add_argument("--batch", type=int, default=8)
-    parser.add_argument("--width", type=int, default=16, help="the U-Net's first width (default 16)")
-    parser.add_argument("--lr", type=float, default=2e-3)
+    parser.add_argument("--width", type=int, default=8, help="the U-Net's first width (default 8)")
+    parser.add_argument("--lr", type=float, default=1e-3)
+    parser.add_argument("--no-residual", action="store_true", help="the U-Net's output is the motion (default: a correction to block matching's)")
     parser.add_argument("--seed", type=int, default=0, help="the model's initialisation and batch order")
     parser.add_argument("--threads", type=int, default=None, help="CPU threads for each framework (default: theirs)")
     parser.add_argument("--device", default="auto", help="torch: auto (cuda when available), cpu or cuda; JAX takes its default device")
@@ -131,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     limit_threads(args.threads)
     motion = args.motion or ("offsets" if args.method == "bezier" else "velocity")
     config = TrainConfig(
-        method=args.method, motion=motion, width=args.width, batch=args.batch, lr=args.lr, minutes=args.minutes, steps=args.steps, seed=args.seed
+        method=args.method, motion=motion, width=args.width, batch=args.batch, lr=args.lr, minutes=args.minutes, steps=args.steps, seed=args.seed, residual=not args.no_residual
     )
     run(
         args.framework,

@@ -29,6 +29,19 @@ def scenes(shutter: int | None = None) -> dict:
     return data
 
 
+def jax_model(dtype=None):
+    """The example's JAX model, its head drawn at random (it starts at zero)."""
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    from examples.learn_motion.jax_model import MotionNet
+
+    net = MotionNet(CONFIG.method, CONFIG.motion, width=CONFIG.width, scale=CONFIG.scale, key=jax.random.key(0), dtype=dtype or jnp.float64)
+    weight = 0.3 * jax.random.normal(jax.random.key(1), net.unet.head.weight.shape, dtype=net.unet.head.weight.dtype)
+    return eqx.tree_at(lambda m: m.unet.head.weight, net, weight)
+
+
 def different_motions(data: dict) -> bool:
     """Every two examples of the batch move differently somewhere."""
     motion = np.concatenate([data["offset_prev"], data["offset_next"]], axis=1)

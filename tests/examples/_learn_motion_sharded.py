@@ -23,8 +23,8 @@ import jax.numpy as jnp  # noqa: E402
 from jax.sharding import NamedSharding  # noqa: E402
 from jax.sharding import PartitionSpec as P  # noqa: E402
 
-from examples.learn_motion import jax_model  # noqa: E402
-from tests.examples._learn_motion import CONFIG, scenes  # noqa: E402
+from examples.learn_motion.jax_model import make_optimizer, train_step  # noqa: E402
+from tests.examples._learn_motion import jax_model, scenes  # noqa: E402
 
 SHUTTER = 2
 
@@ -34,15 +34,15 @@ def main() -> None:
     mesh = jax.make_mesh((len(devices),), ("batch",), axis_types=(jax.sharding.AxisType.Auto,))
     data = scenes(shutter=SHUTTER)
     host = [jnp.asarray(data[name], dtype=jnp.float64) for name in ("frames", "color", "depth", "target")]
-    net = jax_model.MotionNet(CONFIG.method, CONFIG.motion, width=CONFIG.width, scale=CONFIG.scale, key=jax.random.key(0), dtype=jnp.float64)
-    optimizer = jax_model.make_optimizer(1e-2)
+    net = jax_model(jnp.float64)
+    optimizer = make_optimizer(1e-2)
     lr = jnp.asarray(1e-2, dtype=jnp.float64)
     results, seconds = {}, {}
     for name, placement in (("one", devices[0]), ("sharded", NamedSharding(mesh, P("batch")))):
         batch = [jax.device_put(a, placement) for a in host]
         state = optimizer.init(eqx.filter(net, eqx.is_inexact_array))
         started = time.perf_counter()
-        stepped, _, loss = jax_model.train_step(net, state, optimizer, *batch, SHUTTER, lr)
+        stepped, _, loss = train_step(net, state, optimizer, *batch, SHUTTER, lr)
         results[name] = (stepped, float(loss))
         seconds[name] = round(time.perf_counter() - started, 1)
     started = time.perf_counter()

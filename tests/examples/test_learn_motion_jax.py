@@ -19,15 +19,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from examples.learn_motion import jax_model
-from tests.examples._learn_motion import CONFIG, different_motions, scenes
+from tests.examples._learn_motion import different_motions, jax_model, scenes
 
 ROOT = Path(__file__).resolve().parents[2]
 NAMES = ("frames", "color", "depth", "target")
-
-
-def model(dtype=jnp.float64) -> jax_model.MotionNet:
-    return jax_model.MotionNet(CONFIG.method, CONFIG.motion, width=CONFIG.width, scale=CONFIG.scale, key=jax.random.key(0), dtype=dtype)
 
 
 def loss_and_blur(net, frames, color, depth, target, shutter: int):
@@ -42,7 +37,7 @@ def test_jit_and_vmap_of_the_whole_model_equal_the_batched_model():
     data = scenes(shutter=2)
     assert different_motions(data)
     batch = [jnp.asarray(data[name], dtype=jnp.float64) for name in NAMES]
-    net = model()
+    net = jax_model()
     grad = eqx.filter_value_and_grad(loss_and_blur, has_aux=True)
     (loss, blurred), grads = eqx.filter_jit(grad)(net, *batch, 2)
 
