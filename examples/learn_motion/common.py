@@ -4,12 +4,13 @@ batches (NumPy), and how a predicted motion becomes the layer's inputs."""
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import asdict, dataclass
-from typing import Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 
-__all__ = ["BLUR_OPTIONS", "CANDIDATES", "INPUTS", "LEVELS", "RADIUS", "SHARPNESS", "MIRROR", "MOTION_CHANNELS", "TrainConfig", "augment", "batches", "check_size", "learning_rate", "motion_paths"]
+__all__ = ["BLUR_OPTIONS", "CANDIDATES", "INPUTS", "LEVELS", "RADIUS", "SHARPNESS", "MIRROR", "MOTION_CHANNELS", "TrainConfig", "augment", "batches", "check_size", "learning_rate", "motion_paths", "shutter_batches", "training_loop"]
 
 #: Poolings in the U-Net: H and W must be multiples of 2^LEVELS.
 LEVELS = 3
@@ -135,3 +136,36 @@ def batches(data: dict, config: TrainConfig) -> Iterator[tuple[dict, int]]:
         del queues[shutter][-config.batch :]
         arrays = {name: data[name][index] for name in ("frames", "color", "depth", "target")}
         yield augment(arrays, rng, shutter)
+
+
+def training_loop(data: dict, config: TrainConfig, step: Callable[[dict, int, float], float], *, label: str, log=print) -> dict:
+    """The loop both frameworks train with: `step(arrays, shutter, lr)` takes one optimiser step on a
+    batch of `batches` and returns its loss. The learning rate follows `learning_rate` over the
+    progress, the larger of the steps' and the time's share of their budgets; the loop stops when
+    either is spent. Returns the history: step, seconds and mean loss every config.log_every steps,
+    and the totals (steps, train_seconds)."""
+    history = {"step": [], "seconds": [], "loss": []}
+    started = time.perf_counter()
+    count, running = 0, []
+    for count, (arrays, shutter) in enumerate(batches(data, config), start=1):
+        progress = max(count / config.steps, (time.perf_counter() - started) / (60 * config.minutes))
+        lr = learning_rate(config.lr, progress)
+        running.append(step(arrays, shutter, lr))
+        if count % config.log_every == 0 or progress >= 1:
+            seconds = time.perf_counter() - started
+            history["step"].append(count), history["seconds"].append(seconds), history["loss"].append(float(np.mean(running)))
+            if log is not None:
+                log(f"{label:5s} step {count:5d}  {seconds:6.0f} s  loss {np.mean(running):.3e}  lr {lr:.1e}")
+            running = []
+        if progress >= 1:
+            break
+    history["steps"], history["train_seconds"] = count, time.perf_counter() - started
+    return history
+
+
+def shutter_batches(data: dict, batch: int) -> Iterator[tuple[int, np.ndarray]]:
+    """Every example once, for prediction: (shutter, indices) in batches of at most `batch` that share a shutter."""
+    for shutter in np.unique(data["shutter"]):
+        members = np.flatnonzero(data["shutter"] == shutter)
+        for start in range(0, len(members), batch):
+            yield int(shutter), members[start : start + batch]

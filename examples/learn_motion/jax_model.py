@@ -7,8 +7,6 @@ weights (as NumPy arrays, by name), so that the two frameworks can be compared o
 
 from __future__ import annotations
 
-import time
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -16,7 +14,7 @@ import numpy as np
 import optax
 
 import jax_impl
-from examples.learn_motion.common import BLUR_OPTIONS, CANDIDATES, INPUTS, LEVELS, RADIUS, SHARPNESS, linear_motion, MOTION_CHANNELS, TrainConfig, batches, check_size, learning_rate, motion_paths
+from examples.learn_motion.common import BLUR_OPTIONS, CANDIDATES, INPUTS, LEVELS, RADIUS, SHARPNESS, linear_motion, MOTION_CHANNELS, TrainConfig, check_size, motion_paths, shutter_batches, training_loop
 from examples.learn_motion.data import SHUTTERS
 
 __all__ = ["MotionNet", "UNet", "block_matching", "from_torch", "loss_fn", "make_model", "matching_costs", "predict", "train", "train_step"]
@@ -177,29 +175,18 @@ def make_model(config: TrainConfig, dtype=jnp.float32) -> MotionNet:
 
 
 def train(data: dict, config: TrainConfig, *, log=print, dtype=jnp.float32) -> tuple[MotionNet, dict]:
-    """`torch_model.train` in JAX: the same batches (same seed), schedule and stopping rule."""
+    """`torch_model.train` in JAX: the same loop (`common.training_loop`: batches, schedule, stopping rule)."""
     model = make_model(config, dtype)
     optimizer = make_optimizer(config.lr)
-    state = optimizer.init(eqx.filter(model, eqx.is_inexact_array))
-    history = {"step": [], "seconds": [], "loss": []}
-    started = time.perf_counter()
-    step, running = 0, []
-    for step, (arrays, shutter) in enumerate(batches(data, config), start=1):
-        progress = max(step / config.steps, (time.perf_counter() - started) / (60 * config.minutes))
-        lr = jnp.asarray(learning_rate(config.lr, progress), dtype=dtype)
+    carry = {"model": model, "state": optimizer.init(eqx.filter(model, eqx.is_inexact_array))}
+
+    def step(arrays: dict, shutter: int, lr: float) -> float:
         frames, color, depth, target = (jnp.asarray(arrays[name], dtype=dtype) for name in ("frames", "color", "depth", "target"))
-        model, state, loss = train_step(model, state, optimizer, frames, color, depth, target, shutter, lr)
-        running.append(float(loss))
-        if step % config.log_every == 0 or progress >= 1:
-            seconds = time.perf_counter() - started
-            history["step"].append(step), history["seconds"].append(seconds), history["loss"].append(float(np.mean(running)))
-            if log is not None:
-                log(f"jax   step {step:5d}  {seconds:6.0f} s  loss {np.mean(running):.3e}  lr {float(lr):.1e}")
-            running = []
-        if progress >= 1:
-            break
-    history["steps"], history["train_seconds"] = step, time.perf_counter() - started
-    return model, history
+        carry["model"], carry["state"], loss = train_step(carry["model"], carry["state"], optimizer, frames, color, depth, target, shutter, jnp.asarray(lr, dtype=dtype))
+        return float(loss)
+
+    history = training_loop(data, config, step, label="jax", log=log)
+    return carry["model"], history
 
 
 @eqx.filter_jit
@@ -214,13 +201,10 @@ def predict(model: MotionNet, data: dict, *, motion: np.ndarray | None = None, b
     count = len(data["shutter"])
     blurred = np.zeros(data["color"].shape, np.float32)
     out_motion = np.zeros((count, MOTION_CHANNELS[model.motion]) + data["color"].shape[2:], np.float32)
-    for shutter in np.unique(data["shutter"]):
-        members = np.flatnonzero(data["shutter"] == shutter)
-        for start in range(0, len(members), batch):
-            index = members[start : start + batch]
-            padded = np.concatenate([index, np.repeat(index[-1:], batch - len(index))])
-            inputs = (jnp.asarray(data[name][padded], dtype=dtype) for name in ("frames", "color", "depth"))
-            given = None if motion is None else jnp.asarray(motion[padded], dtype=dtype)
-            out, predicted = _forward(model, *inputs, int(shutter), given)
-            blurred[index], out_motion[index] = np.asarray(out)[: len(index)], np.asarray(predicted)[: len(index)]
+    for shutter, index in shutter_batches(data, batch):
+        padded = np.concatenate([index, np.repeat(index[-1:], batch - len(index))])
+        inputs = (jnp.asarray(data[name][padded], dtype=dtype) for name in ("frames", "color", "depth"))
+        given = None if motion is None else jnp.asarray(motion[padded], dtype=dtype)
+        out, predicted = _forward(model, *inputs, shutter, given)
+        blurred[index], out_motion[index] = np.asarray(out)[: len(index)], np.asarray(predicted)[: len(index)]
     return blurred, out_motion

@@ -6,8 +6,6 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -23,11 +21,11 @@ from examples.learn_motion.common import (
     SHARPNESS,
     MOTION_CHANNELS,
     TrainConfig,
-    batches,
     check_size,
-    learning_rate,
     linear_motion,
     motion_paths,
+    shutter_batches,
+    training_loop,
 )
 from examples.learn_motion.data import SHUTTERS
 
@@ -141,34 +139,22 @@ def make_model(config: TrainConfig, device: str = "cpu") -> MotionNet:
 
 def train(data: dict, config: TrainConfig, *, device: str = "cpu", log=print) -> tuple[MotionNet, dict]:
     """Adam on the mean squared error against the blurred target, for config.minutes or config.steps,
-    whichever ends first; the learning rate follows `common.learning_rate`. Returns the model and a
-    history (steps, seconds, loss per logged step)."""
+    whichever ends first (`common.training_loop`). Returns the model and the history."""
     model = make_model(config, device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
-    history = {"step": [], "seconds": [], "loss": []}
-    started = time.perf_counter()
-    step, running = 0, []
-    for step, (arrays, shutter) in enumerate(batches(data, config), start=1):
-        progress = max(step / config.steps, (time.perf_counter() - started) / (60 * config.minutes))
+
+    def step(arrays: dict, shutter: int, lr: float) -> float:
         for group in optimizer.param_groups:
-            group["lr"] = learning_rate(config.lr, progress)
+            group["lr"] = lr
         frames, color, depth, target = _tensors(arrays, device)
         blurred, _ = model(frames, color, depth, shutter)
         loss = ((blurred - target) ** 2).mean()
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
-        running.append(loss.item())
-        if step % config.log_every == 0 or progress >= 1:
-            seconds = time.perf_counter() - started
-            history["step"].append(step), history["seconds"].append(seconds), history["loss"].append(float(np.mean(running)))
-            if log is not None:
-                log(f"torch step {step:5d}  {seconds:6.0f} s  loss {np.mean(running):.3e}  lr {learning_rate(config.lr, progress):.1e}")
-            running = []
-        if progress >= 1:
-            break
-    history["steps"], history["train_seconds"] = step, time.perf_counter() - started
-    return model, history
+        return loss.item()
+
+    return model, training_loop(data, config, step, label="torch", log=log)
 
 
 @torch.no_grad()
@@ -178,12 +164,9 @@ def predict(model: MotionNet, data: dict, *, motion: np.ndarray | None = None, b
     count = len(data["shutter"])
     blurred = np.zeros(data["color"].shape, np.float32)
     out_motion = np.zeros((count, MOTION_CHANNELS[model.motion]) + data["color"].shape[2:], np.float32)
-    for shutter in np.unique(data["shutter"]):
-        members = np.flatnonzero(data["shutter"] == shutter)
-        for start in range(0, len(members), batch):
-            index = members[start : start + batch]
-            frames, color, depth, _ = _tensors(data, device, index)
-            given = None if motion is None else torch.from_numpy(np.ascontiguousarray(motion[index], dtype=np.float32)).to(device)
-            out, predicted = model(frames, color, depth, int(shutter), given)
-            blurred[index], out_motion[index] = out.float().cpu().numpy(), predicted.float().cpu().numpy()
+    for shutter, index in shutter_batches(data, batch):
+        frames, color, depth, _ = _tensors(data, device, index)
+        given = None if motion is None else torch.from_numpy(np.ascontiguousarray(motion[index], dtype=np.float32)).to(device)
+        out, predicted = model(frames, color, depth, shutter, given)
+        blurred[index], out_motion[index] = out.float().cpu().numpy(), predicted.float().cpu().numpy()
     return blurred, out_motion
