@@ -1,8 +1,12 @@
 """diffblur: differentiable real-time motion blur, framework-neutral core (NumPy only).
 
-Submodules: `conventions` (shapes, units, constants), `checks` (argument checks both backends
-share), `reference` (NumPy oracle of every op). The PyTorch ops live in `torch_impl`, the JAX
-ops in `jax_impl`; this package never imports either framework.
+The core, this package's top level: `conventions` (shapes, units, constants), `checks` (argument
+checks both backends share), `shutters`, `taps` and the option modules (`_scatter_options`,
+`_warp_options`, `_adaptive`, `_pyramid`), `motion_ids`, `modules`, `metrics`, and `reference` (the
+NumPy oracle of every op). Above it: `kernels` (the fused CPU kernels, numba), `scenes` (the
+ground-truth renderer) and `app` (the command, the benchmark, the demo). The PyTorch ops live in
+`torch_impl`, the JAX ops in `jax_impl`; only `app` imports them, and nothing in this package
+imports a framework (tests/core/test_layers.py).
 """
 
 __version__ = "0.1.0"

@@ -1,5 +1,5 @@
 import sys
 
-from diffblur.cli import main
+from diffblur.app.cli import main
 
 sys.exit(main())

@@ -11,7 +11,7 @@ The backends make the saving real by grouping the tiles of each class and runnin
 filter on the compacted pixels of its tiles only (eager mode). Under `torch.compile` / `jax.jit`
 the classes are data the compiler cannot size, so the backends compute every class on every pixel
 and select per tile: the same result, no saving (`ADAPTIVE_COMPILED_NOTE`). The fused CPU paths of
-`reconstruct` and `gather_blur` (`diffblur._fused`) take the per-tile counts into their kernels
+`reconstruct` and `gather_blur` (`diffblur.kernels.reconstruct`, `diffblur.kernels.gather`) take the per-tile counts into their kernels
 instead, which saves the work eagerly and under `jax.jit` alike.
 """
 

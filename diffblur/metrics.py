@@ -3,8 +3,9 @@
 `psnr` and `ssim` call scikit-image's maintained implementations with `data_range` given
 explicitly (never guessed from the data) and average over the batch. `velocity_to_color` draws a
 velocity field on a colour wheel (hue = direction, saturation = speed); `error_map_figure` and
-`save_error_map` draw |prediction - target|. Figures are made with matplotlib's object API on the Agg
-canvas, so no global backend is touched.
+`save_error_map` draw |prediction - target|; `linear_to_srgb` and `srgb_to_linear` convert between
+the linear colour the ops take and the encoded values of pictures. Figures are made with matplotlib's
+object API on the Agg canvas, so no global backend is touched.
 """
 
 from __future__ import annotations
@@ -15,18 +16,31 @@ from typing import Any
 import numpy as np
 
 from diffblur import checks
-from diffblur._textures import linear_to_srgb
 from diffblur.conventions import VECTOR_CHANNELS, X_CHANNEL, Y_CHANNEL
 
 __all__ = [
     "color_wheel",
     "error_map_figure",
+    "linear_to_srgb",
     "psnr",
     "save_error_map",
+    "srgb_to_linear",
     "ssim",
     "to_display",
     "velocity_to_color",
 ]
+
+
+def srgb_to_linear(encoded: np.ndarray) -> np.ndarray:
+    """sRGB-encoded values in [0, 1] to linear intensities (IEC 61966-2-1)."""
+    encoded = np.asarray(encoded, dtype=np.float64)
+    return np.where(encoded <= 0.04045, encoded / 12.92, ((encoded + 0.055) / 1.055) ** 2.4)
+
+
+def linear_to_srgb(linear: np.ndarray) -> np.ndarray:
+    """Linear intensities to sRGB-encoded values, clipped to [0, 1] first (for display)."""
+    linear = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)
+    return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
 
 
 def _pair(prediction: Any, target: Any) -> tuple[np.ndarray, np.ndarray]:

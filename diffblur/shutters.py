@@ -56,6 +56,7 @@ __all__ = [
     "get_shutter",
     "instants",
     "overlap_sum",
+    "register_erf",
 ]
 
 # erf(x) for x >= ERF_SATURATION is 1 to within 2e-17 (erfc(6) = 2.2e-17): the series below stops
@@ -82,9 +83,23 @@ def _erf_series(x: Any, xp: Any) -> Any:
     return xp.where(inside, value, 0.0 * x + 1.0)
 
 
+#: A framework's own erf, by the name of its array namespace (`xp.__name__`), for namespaces that do
+#: not carry one: the backends register theirs when imported (`jax_impl` registers
+#: jax.scipy.special.erf for "jax.numpy"), so that this module imports no framework.
+_ERF_BY_NAMESPACE: dict[str, Any] = {}
+
+
+def register_erf(namespace: str, erf: Any) -> None:
+    """Use `erf` (elementwise, differentiable) for arrays of the namespace named `namespace`
+    (e.g. "jax.numpy") in the Gaussian window, instead of the series."""
+    _ERF_BY_NAMESPACE[namespace] = erf
+
+
 def _erf(x: Any, xp: Any) -> Any:
     """erf for any backend: math.erf for Python numbers, SciPy's for NumPy arrays, the framework's own
-    for torch tensors (torch.special.erf) and JAX arrays (jax.scipy.special.erf), else the series.
+    for torch tensors (torch.special.erf, reached through `xp`) and for a namespace whose backend
+    registered one (`register_erf`: jax.scipy.special.erf for JAX arrays once `jax_impl` is
+    imported), else the series.
 
     The frameworks' erf are single differentiable ops: the series is 160 of them, which compilers
     (torch.compile, XLA) unroll at great cost when a Gaussian's sigma is fitted."""
@@ -97,10 +112,8 @@ def _erf(x: Any, xp: Any) -> Any:
     name = getattr(xp, "__name__", "")
     if name == "torch" and isinstance(x, xp.Tensor):
         return xp.special.erf(x)
-    if name == "jax.numpy":
-        from jax.scipy.special import erf  # jax is already imported: xp is jax.numpy
-
-        return erf(x)
+    if name in _ERF_BY_NAMESPACE:
+        return _ERF_BY_NAMESPACE[name](x)
     ax = xp.abs(x)
     value = _erf_series(ax, xp)
     return xp.where(x < 0, -value, value)

@@ -231,7 +231,7 @@ def _upsample(x: np.ndarray, height: int, width: int) -> np.ndarray:
 
 def push_pull(color: np.ndarray, known: np.ndarray) -> np.ndarray:
     """`color` (B, C, H, W) extended from the pixels where `known` (B, 1, H, W) is 1 over the
-    others by bezier_scatter's push-pull (its fill="still"; `diffblur._reference_scatter.still_fill`
+    others by bezier_scatter's push-pull (its fill="still"; `diffblur.reference._scatter.still_fill`
     is the loop-based oracle): NumPy, for the fits' constant data."""
     levels = [(color * known, known)]
     while max(levels[-1][1].shape[-2:]) > 1:

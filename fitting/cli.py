@@ -29,7 +29,7 @@ def load_image(path: str, *, channels: int | None = None) -> np.ndarray:
         while x.ndim < 4:
             x = x[None]
         return x
-    from diffblur.blur_image import read_picture
+    from diffblur.app.blur_image import read_picture
     from diffblur.scenes import srgb_to_linear
 
     x = srgb_to_linear(read_picture(path).transpose(2, 0, 1)[None])

@@ -455,7 +455,7 @@ def write_section(path: str | os.PathLike, text: str, *, label: str | None = Non
 
 
 def _machine() -> dict[str, Any]:
-    from diffblur.bench import cpu_model
+    from diffblur.app.bench import cpu_model
 
     model = cpu_model()
     try:

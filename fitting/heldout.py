@@ -49,8 +49,8 @@ from typing import Any
 
 import numpy as np
 
-from diffblur._presets import _disk, _propeller, _rounded_box, _spoked
-from diffblur._textures import PHOTOS, coverage, pad
+from diffblur.scenes._presets import _disk, _propeller, _rounded_box, _spoked
+from diffblur.scenes._textures import PHOTOS, coverage, pad
 from diffblur.scenes import Camera, ImageTexture, Layer, Rotation, Scene, SceneBuffers, Static, Translation, checkers, photo, render_buffers, stripes
 from diffblur.shutters import LinearRamp, ShutterWindow, Trapezoid
 from fitting.scenes import layer_ids
@@ -177,7 +177,7 @@ def _card(rng: np.random.Generator, kind: str, center: tuple[float, float], halv
 
 
 def _object_texture(inside, box: tuple[float, float, float, float], paint) -> ImageTexture:
-    """A textured shape with a transparent border (`diffblur._presets._object` without its frame)."""
+    """A textured shape with a transparent border (`diffblur.scenes._presets._object` without its frame)."""
     x0, y0 = int(math.floor(box[0])) - 1, int(math.floor(box[1])) - 1
     x1, y1 = int(math.ceil(box[2])) + 1, int(math.ceil(box[3])) + 1
     h, w = y1 - y0 + 1, x1 - x0 + 1

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from diffblur._textures import pad
+from diffblur.scenes._textures import pad
 from diffblur.scenes import (
     Camera,
     ImageTexture,

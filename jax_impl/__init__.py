@@ -3,6 +3,14 @@
 Mirrors `torch_impl` name by name; conventions in `diffblur.conventions`.
 """
 
+from jax.scipy.special import erf as _erf
+
+from diffblur import shutters as _shutters
+
+# The Gaussian window's erf for JAX arrays is JAX's own (one differentiable op, not a 160-term
+# series): registered here, as the core (`diffblur.shutters`) imports no framework.
+_shutters.register_erf("jax.numpy", _erf)
+
 from jax_impl._gather import gather_blur
 from jax_impl._module import MotionBlur
 from jax_impl._motion_ids import velocity_from_motion_ids

@@ -1,5 +1,5 @@
-"""`reconstruct` and `gather_blur` on the fused CPU kernels (`diffblur._fused`): `custom_vjp`s over
-`pure_callback`.
+"""`reconstruct` and `gather_blur` on the fused CPU kernels (`diffblur.kernels.reconstruct`,
+`diffblur.kernels.gather`): `custom_vjp`s over `pure_callback`.
 
 The kernels run on the host, inside or outside `jax.jit`; reverse mode (grad, vjp) uses the
 kernels' backward, for the differentiated inputs only (`symbolic_zeros=True` tells the rules which). Forward mode (jvp, jacfwd, linearize) is not defined for a custom_vjp: such
@@ -17,7 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.custom_derivatives import SymbolicZero
 
-from diffblur import _fused
+from diffblur.kernels import gather as gather_kernel
+from diffblur.kernels import reconstruct as reconstruct_kernel
 from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED
 from jax_impl._primitives import _safe_length, neighbor_max, tile_max
 from jax_impl._sampling import widen_window
@@ -40,12 +41,12 @@ def _backend_reason() -> str | None:
 
 def unfused_reason(o, color) -> str | None:
     """Why the fused reconstruct cannot run these inputs and options, or None when it can."""
-    return _fused.reconstruct_unfused_reason(o, str(jnp.dtype(color.dtype))) or _backend_reason()
+    return reconstruct_kernel.reconstruct_unfused_reason(o, str(jnp.dtype(color.dtype))) or _backend_reason()
 
 
 def gather_unfused_reason(color, sampling: str, pyramid: bool) -> str | None:
     """Why the fused gather_blur cannot run these inputs and options, or None when it can."""
-    return _fused.gather_unfused_reason(sampling, pyramid, str(jnp.dtype(color.dtype))) or _backend_reason()
+    return gather_kernel.gather_unfused_reason(sampling, pyramid, str(jnp.dtype(color.dtype))) or _backend_reason()
 
 
 @lru_cache(maxsize=256)
@@ -57,12 +58,12 @@ def _bound(function, settings):
 
 def _host_forward(settings, color, velocity, depth, neighbors, counts, jitter):
     arrays = (np.ascontiguousarray(a) for a in (color, velocity, depth, neighbors, counts, jitter))
-    return _fused.reconstruct_forward(*arrays, **dict(settings))
+    return reconstruct_kernel.reconstruct_forward(*arrays, **dict(settings))
 
 
 def _host_backward(settings, *arrays):
     """The gradients asked for (settings' "needs"), in order, without the Nones."""
-    grads = _fused.reconstruct_backward(*(np.ascontiguousarray(a) for a in arrays), **dict(settings))
+    grads = reconstruct_kernel.reconstruct_backward(*(np.ascontiguousarray(a) for a in arrays), **dict(settings))
     return tuple(g for g in grads if g is not None)
 
 
@@ -114,7 +115,7 @@ def fused_reconstruct(color, velocity, depth, jitter, o):
     """reconstruct (options `o`, adaptive or not) on the fused kernel; see `unfused_reason`."""
     neighbors = neighbor_max(tile_max(velocity, o.tile))
     speed = _safe_length(jax.lax.stop_gradient(neighbors))[:, 0]
-    counts = _fused.tile_counts(speed, o, jnp)
+    counts = reconstruct_kernel.tile_counts(speed, o, jnp)
     settings = (("tile", o.tile), ("soft_z_extent", o.soft_z_extent), ("min_radius", o.min_radius), ("own_odd", o.directions == "neighbor_and_own"))
     jitter = jnp.broadcast_to(jitter, (jitter.shape[0], 1, *color.shape[2:]))
     return _fused_core(settings, color, velocity, depth, neighbors, counts.astype(jnp.int32), jitter)
@@ -122,12 +123,12 @@ def fused_reconstruct(color, velocity, depth, jitter, o):
 
 
 def _host_gather_forward(settings, color, velocity, masses):
-    return _fused.gather_forward(*(np.ascontiguousarray(a) for a in (color, velocity, masses)), **dict(settings))
+    return gather_kernel.gather_forward(*(np.ascontiguousarray(a) for a in (color, velocity, masses)), **dict(settings))
 
 
 def _host_gather_backward(settings, *arrays):
     """The gradients asked for (settings' "needs"), in order, without the Nones."""
-    grads = _fused.gather_backward(*(np.ascontiguousarray(a) for a in arrays), **dict(settings))
+    grads = gather_kernel.gather_backward(*(np.ascontiguousarray(a) for a in arrays), **dict(settings))
     return tuple(g for g in grads if g is not None)
 
 
@@ -160,5 +161,5 @@ def fused_gather(color, velocity, window, samples: int, classes: tuple[int, ...]
     """gather_blur (full rate, or the adaptive `classes`) on the fused kernel; see `gather_unfused_reason`.
     The kernel sizes the adaptive classes itself, from the velocity."""
     settings = (("samples", samples), ("classes", classes), ("still", STILL_SPEED), ("tile", ADAPTIVE_TILE))
-    table = _fused.gather_mass_table(widen_window(window, wide), samples, classes or (samples,), jnp, wide).astype(color.dtype)
+    table = gather_kernel.gather_mass_table(widen_window(window, wide), samples, classes or (samples,), jnp, wide).astype(color.dtype)
     return _fused_gather_core(settings, color, velocity, table)

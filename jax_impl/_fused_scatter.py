@@ -1,4 +1,4 @@
-"""`bezier_scatter`'s splats on the fused CPU kernel (`diffblur._fused_scatter`): a `custom_vjp` over
+"""`bezier_scatter`'s splats on the fused CPU kernel (`diffblur.kernels.scatter`): a `custom_vjp` over
 `pure_callback`.
 
 The kernel runs on the host, inside or outside `jax.jit`; reverse mode (grad, vjp) uses its
@@ -16,23 +16,23 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from diffblur import _fused_scatter
+from diffblur.kernels import scatter as scatter_kernel
 from jax_impl._fused import _backend_reason, _bound
 from jax_impl._primitives import _floor_extent
 
 
 def unfused_reason(color) -> str | None:
     """Why the fused splats cannot run on these inputs, or None when they can."""
-    return _fused_scatter.splat_unfused_reason(str(jnp.dtype(color.dtype))) or _backend_reason()
+    return scatter_kernel.splat_unfused_reason(str(jnp.dtype(color.dtype))) or _backend_reason()
 
 
 def _host_forward(flags, *arrays):
     # order="C", not np.ascontiguousarray, which makes the 0-d extent 1-d.
-    return _fused_scatter.splat_forward(*(np.asarray(a, order="C") for a in arrays), **dict(flags))
+    return scatter_kernel.splat_forward(*(np.asarray(a, order="C") for a in arrays), **dict(flags))
 
 
 def _host_backward(flags, *arrays):
-    return _fused_scatter.splat_backward(*(np.asarray(a, order="C") for a in arrays), **dict(flags))
+    return scatter_kernel.splat_backward(*(np.asarray(a, order="C") for a in arrays), **dict(flags))
 
 
 @partial(jax.custom_vjp, nondiff_argnums=(0,))
@@ -59,7 +59,7 @@ _fused_splat_core.defvjp(_fused_splat_core_fwd, _fused_splat_core_bwd)
 
 def _path(kind: str, terms: tuple):
     """The kernel's (B, P, H, W) path: the arc's centre and angle, or the four power-basis terms
-    (zeros for those the degree lacks; see `diffblur._fused_scatter.BEZIER_CHANNELS`)."""
+    (zeros for those the degree lacks; see `diffblur.kernels.scatter.BEZIER_CHANNELS`)."""
     if kind == "arc":
         return jnp.concatenate(terms, axis=1)
     like = next(term for term in terms if term is not None)

@@ -118,7 +118,7 @@ def reconstruct(
             the tap direction v), read the taps' colour from a pre-filtered pyramid level (seed
             001's texture-space blur), trilinearly; depth and velocity stay full resolution.
             Needs "bilinear"; not combined with adaptive yet.
-        fused: run the filter and its backward in one parallel CPU loop (`diffblur._fused`, numba,
+        fused: run the filter and its backward in one parallel CPU loop (`diffblur.kernels.reconstruct`, numba,
             through `jax.pure_callback`, also under `jax.jit`) instead of jax.numpy ops: same
             result and gradients (tested), faster on the CPU (timings: docs/fused.md). None (default): fused
             where it applies (CPU backend, float32/float64, bilinear, box shutter, no pyramid;
@@ -156,7 +156,7 @@ def reconstruct(
     if o.log_depth:  # the band relative to depth: compare log depths (`diffblur.checks.depth_band`)
         depth = jnp.log(depth)
     if fused is not False:
-        from diffblur._fused import use_fused
+        from diffblur.kernels.shared import use_fused
         from jax_impl._fused import fused_reconstruct, unfused_reason
 
         if use_fused("reconstruct", fused, unfused_reason(o, color)):

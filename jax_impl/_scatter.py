@@ -272,7 +272,7 @@ def bezier_scatter(
             the sum in both (they are their own level layer, in front of what passes behind them);
             "paper" has no layers. "layers" splats three times (nearer, passed, all).
         fused: sum the splats and their backward in one parallel CPU loop each
-            (`diffblur._fused_scatter`, numba, a host callback, also under jax.jit and jax.vmap),
+            (`diffblur.kernels.scatter`, numba, a host callback, also under jax.jit and jax.vmap),
             with the same result and gradients (tested) and O(pixels) memory, faster on the CPU
             (timings: docs/fused.md). The normalisation and the fill stay jax.numpy ops. None (default): fused
             where it applies (JAX's default backend is the CPU, float32/float64), jax.numpy ops
@@ -334,7 +334,7 @@ def bezier_scatter(
         depth = _checks.finite_values("background", background, carry=depth)
 
     if fused is not False:
-        from diffblur._fused import use_fused
+        from diffblur.kernels.shared import use_fused
         from jax_impl._fused_scatter import unfused_reason
 
         fused = use_fused("bezier_scatter", fused, unfused_reason(color))

@@ -1,6 +1,6 @@
 """PSNR of method variants on three scene sets (PyTorch, float32, box shutter):
 
-- tuned: the four Mitsuba scenes (`diffblur.mitsuba_scenes`) at --size;
+- tuned: the four Mitsuba scenes (`diffblur.scenes.mitsuba`) at --size;
 - presets: the 2.5D presets (`diffblur.scenes`, seed 0) at --size;
 - untuned: the Mitsuba variants of scripts/mitsuba_untuned.py (UNTUNED_SEED, 64x64) and the presets
   drawn with seed UNTUNED_SEED, nothing tuned on them.
@@ -59,7 +59,7 @@ def variants(group: str):
 
 def scene_sets(sets: list[str], size: int):
     if "tuned" in sets:
-        from diffblur.mitsuba_scenes import MITSUBA_SCENES, mitsuba_buffers
+        from diffblur.scenes.mitsuba import MITSUBA_SCENES, mitsuba_buffers
 
         for name in MITSUBA_SCENES:
             yield "tuned", name, mitsuba_buffers(name, height=size, width=size)

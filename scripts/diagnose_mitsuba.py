@@ -42,7 +42,7 @@ def hidden(b) -> np.ndarray:
     """Fraction of HIDDEN_INSTANTS instants (stratum midpoints) at which each pixel's ray hits a point
     the sharp frame does not show: moved back to t = 0 by its object's motion and projected, it lands
     outside the image or more than 1 % behind the depth buffer there (hidden by a nearer surface)."""
-    from diffblur.mitsuba_scenes import _hits, _mitsuba, project
+    from diffblur.scenes.mitsuba import _hits, _mitsuba, project
 
     mi = _mitsuba()
     scene = b.scene
@@ -174,7 +174,7 @@ def main() -> None:
     parser.add_argument("--sweep", action="store_true")
     parser.add_argument("--maps", default=None, help="folder for error-map .npy files of the defaults")
     args = parser.parse_args()
-    from diffblur.mitsuba_scenes import mitsuba_buffers
+    from diffblur.scenes.mitsuba import mitsuba_buffers
 
     torch.set_num_threads(1)
     for name in args.scenes.split(","):

@@ -18,8 +18,8 @@ import argparse
 
 import numpy as np
 
-from diffblur._textures import photo
-from diffblur.blur_image import BlurInputs, blur_image
+from diffblur.scenes._textures import photo
+from diffblur.app.blur_image import BlurInputs, blur_image
 from diffblur.metrics import psnr
 from diffblur.modules import METHOD_INPUTS
 

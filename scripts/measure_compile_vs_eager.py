@@ -17,7 +17,7 @@ before the kernels were operators). Inputs: float64, (1, 3, 8, 9) (tiny, to boun
     PYTHONPATH=. python scripts/measure_compile_vs_eager.py [--only NAME,...] [--limit 900] [--write]
 
 `--write` puts the rows into the section "Compiled against eager" of BENCHMARKS.md
-(`diffblur.bench.replace_section`): a case measured in this run replaces its row, the others stay,
+(`diffblur.app.bench.replace_section`): a case measured in this run replaces its row, the others stay,
 each with the date of the run it came from.
 """
 
@@ -308,7 +308,7 @@ def merged_rows(new: dict[str, dict], old: dict[str, dict]) -> tuple[list[str], 
 
 
 def write_section(text: str) -> None:
-    from diffblur.bench import replace_section
+    from diffblur.app.bench import replace_section
 
     replace_section(str(ROOT / "BENCHMARKS.md"), "## Compiled against eager", text)
 

@@ -2,7 +2,7 @@
 
 One forward + backward (the gradient of the output's sum w.r.t. every floating input) per case, eager
 PyTorch and eager JAX, default options, velocities mixing still pixels and speeds up to ~40 px.
-The peak is the resident-set high-water mark above the resting RSS (`diffblur.bench._peak_rss_mb`:
+The peak is the resident-set high-water mark above the resting RSS (`diffblur.app.bench._peak_rss_mb`:
 malloc_trim, then /proc/self/clear_refs resets VmHWM), divided by the inputs' bytes.
 
     PYTHONPATH=. python scripts/measure_degenerate_memory.py [--n 4097] [--frameworks torch,jax]
@@ -14,7 +14,7 @@ import argparse
 
 import numpy as np
 
-from diffblur.bench import _peak_rss_mb
+from diffblur.app.bench import _peak_rss_mb
 
 OPS = ("gather_blur", "reconstruct", "bezier_scatter", "warp_blend", "accumulate_warps")
 DTYPES = ("float16", "bfloat16", "float32", "float64")

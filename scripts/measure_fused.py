@@ -1,4 +1,5 @@
-"""Measure the fused CPU kernels (diffblur._fused) against the tensor ops and kornia, in one run.
+"""Measure the fused CPU kernels (diffblur.kernels: reconstruct, gather) against the tensor ops and
+kornia, in one run.
 
 Part 1, the design's targets: 1280x720 uniform pan, float32, S=15, forward and forward+backward
 (w.r.t. every differentiable input), `reconstruct` and `gather_blur` in PyTorch (eager) and JAX
@@ -22,7 +23,7 @@ import time
 
 import numpy as np
 
-from diffblur.timing import median_ms_each
+from diffblur.app.timing import median_ms_each
 
 sys.path.insert(0, os.path.dirname(__file__))
 
@@ -71,7 +72,7 @@ def targets(repeats: int) -> None:
     import kornia
     import torch
 
-    from diffblur.bench import _inputs, uniform_scene
+    from diffblur.app.bench import _inputs, uniform_scene
 
     scene = _inputs(uniform_scene(height=720, width=1280))
     names = {"reconstruct": ("color", "velocity", "depth"), "gather_blur": ("color", "velocity")}

@@ -1,6 +1,6 @@
-"""Measure bezier_scatter's fused CPU splats (diffblur._fused_scatter) against the tensor ops.
+"""Measure bezier_scatter's fused CPU splats (diffblur.kernels.scatter) against the tensor ops.
 
-1280x720, float32, a uniform pan: the photograph and depth of `diffblur.bench.uniform_scene` with
+1280x720, float32, a uniform pan: the photograph and depth of `diffblur.app.bench.uniform_scene` with
 offsets (-V, +V), V = (8, 0) px, degree 2, a Gaussian shutter (named: the default is the box),
 coverage normalisation and the push-pull fill; 16 points per curve (what samples=None picks for these 16 px paths). Forward
 and forward+backward (w.r.t. color, depth and both offsets) in PyTorch (eager; also samples=None,
@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from diffblur.timing import median_ms_each
+from diffblur.app.timing import median_ms_each
 
 HALF_SPREAD = 8.0
 SAMPLES = 16
@@ -28,7 +28,7 @@ SAMPLES = 16
 
 def scene() -> list[np.ndarray]:
     """color, depth, offset_prev, offset_next: float32, (1, C, 720, 1280)."""
-    from diffblur.bench import uniform_scene
+    from diffblur.app.bench import uniform_scene
 
     buffers = uniform_scene(height=720, width=1280)
     offset = np.zeros((1, 2, 720, 1280), dtype=np.float32)

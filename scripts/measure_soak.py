@@ -18,7 +18,7 @@ held by live objects. `--fixed` draws one option set only (the first), for compa
     PYTHONPATH=. python scripts/measure_soak.py [--calls 1000] [--size 256] [--frameworks torch,jax]
         [--ops gather_blur,...] [--fixed] [--write]
 
-`--write` puts the rows into the section "Soak" of BENCHMARKS.md (`diffblur.bench.replace_section`):
+`--write` puts the rows into the section "Soak" of BENCHMARKS.md (`diffblur.app.bench.replace_section`):
 a row of this run replaces the row of the same framework, op and option draw, the others stay, each
 with the date of the run it came from.
 """
@@ -240,7 +240,7 @@ def findings(results: dict, settle: int, run: str) -> str:
 
 
 def write_section(text: str) -> None:
-    from diffblur.bench import replace_section
+    from diffblur.app.bench import replace_section
 
     replace_section(str(ROOT / "BENCHMARKS.md"), "## Soak", text)
 

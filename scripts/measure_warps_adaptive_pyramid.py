@@ -21,7 +21,7 @@ import numpy as np
 
 from diffblur.metrics import psnr, ssim, to_display
 from diffblur.scenes import make_scene
-from diffblur.timing import median_ms
+from diffblur.app.timing import median_ms
 
 PRESETS = ("translate", "crossing", "propeller", "gears")
 

@@ -1,4 +1,4 @@
-"""A set of Mitsuba scenes nothing was tuned on: the four `diffblur.mitsuba_scenes` scenes with their
+"""A set of Mitsuba scenes nothing was tuned on: the four `diffblur.scenes.mitsuba` scenes with their
 moving objects moved, their speeds and the camera's scaled, drawn from `UNTUNED_SEED` (used for
 nothing else), rendered at 64x64 and cached under .cache/diffblur/untuned.
 
@@ -24,7 +24,7 @@ UNTUNED_SEED = 20261202
 def _variant(scene, rng):
     """The scene with each moving object shifted (up to 0.25 world units in x and y at t = 0) and its
     motion scaled by 0.6 to 1.4, the camera's translation scaled the same way."""
-    from diffblur.mitsuba_scenes import Motion3D
+    from diffblur.scenes.mitsuba import Motion3D
 
     objects = []
     shift = rng.uniform(-0.25, 0.25, size=2)  # one shift for the scene's moving objects (keeps a propeller whole)
@@ -46,7 +46,7 @@ def _variant(scene, rng):
 
 
 def untuned_scenes(size: int = 64, variants: int = 2) -> dict:
-    from diffblur.mitsuba_scenes import MITSUBA_SCENES, mitsuba_scene, render_mitsuba
+    from diffblur.scenes.mitsuba import MITSUBA_SCENES, mitsuba_scene, render_mitsuba
     from diffblur.scenes import SceneBuffers
     from diffblur.shutters import get_shutter
 

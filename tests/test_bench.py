@@ -8,8 +8,8 @@ import math
 
 import pytest
 
-from diffblur import bench
-from diffblur.cli import main
+from diffblur.app import bench
+from diffblur.app.cli import main
 
 
 @pytest.fixture(scope="module")
@@ -71,7 +71,7 @@ def test_bench_rejects_unknown_scene(capsys):
 
 def test_timed_calls_take_turns():
     """median_ms_each interleaves its functions (so drift reaches all alike), warm-up rounds first."""
-    from diffblur.timing import median_ms_each
+    from diffblur.app.timing import median_ms_each
 
     calls = []
     times = median_ms_each([lambda: calls.append("forward"), lambda: calls.append("backward")], repeats=3, warmup=1)

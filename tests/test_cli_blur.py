@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from diffblur.blur_image import load_inputs, read_picture
-from diffblur.cli import main
+from diffblur.app.blur_image import load_inputs, read_picture
+from diffblur.app.cli import main
 
 
 @pytest.fixture
@@ -110,7 +110,7 @@ def test_missing_or_unreadable_photograph(tmp_path, capsys):
 
 
 def test_samples_sets_accumulates_instants_and_max_radius_reaches_reconstruct(tmp_path, photo):
-    from diffblur.blur_image import blur_image, write_picture
+    from diffblur.app.blur_image import blur_image, write_picture
 
     out = tmp_path / "acc.png"
     assert main(["blur", str(photo), "-o", str(out), "--velocity", "5", "0", "--method", "accumulate", "--samples", "5"]) == 0
@@ -139,13 +139,13 @@ def test_samples_sets_accumulates_instants_and_max_radius_reaches_reconstruct(tm
     ],
 )
 def test_command_line_mistakes_are_caught_before_the_blur_runs(tmp_path, photo, capsys, monkeypatch, extra, message):
-    import diffblur.blur_image
+    import diffblur.app.blur_image
 
     def must_not_run(*args, **kwargs):
         raise AssertionError("the blur ran before the command line was checked")
 
-    monkeypatch.setattr(diffblur.blur_image, "blur_image", must_not_run)
-    monkeypatch.setattr(diffblur.blur_image, "load_inputs", must_not_run)
+    monkeypatch.setattr(diffblur.app.blur_image, "blur_image", must_not_run)
+    monkeypatch.setattr(diffblur.app.blur_image, "load_inputs", must_not_run)
     args = ["blur", str(photo), "-o", str(tmp_path / "out.png"), "--velocity", "2", "0"] + [a.format(tmp=tmp_path, photo=photo) for a in extra]
     assert main(args) == 2
     err = capsys.readouterr().err
@@ -155,7 +155,7 @@ def test_command_line_mistakes_are_caught_before_the_blur_runs(tmp_path, photo, 
 def test_default_method_is_gather_without_depth_and_reconstruct_with_it(tmp_path, photo, capsys):
     """Without depth nothing separates by depth and the gather is the closest to the exact blur
     (scripts/measure_blur_methods_on_photo.py); with depth, reconstruct keeps smears behind what is in front."""
-    from diffblur.blur_image import default_method
+    from diffblur.app.blur_image import default_method
 
     assert default_method(False) == "gather" and default_method(True) == "reconstruct"
     assert main(["blur", str(photo), "-o", str(tmp_path / "a.png"), "--velocity", "2", "0"]) == 0

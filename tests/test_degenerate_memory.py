@@ -4,7 +4,7 @@ inputs' bytes (colour, velocity and depth: 24,582 numbers, 96 KB).
 
 The peak is measured as scripts/measure_degenerate_memory.py measures it (every dtype, in
 docs/robustness.md): the resident-set high-water mark above the resting RSS while one forward +
-backward runs (`diffblur.bench._peak_rss_mb`), after a warm-up call that fills the compile caches
+backward runs (`diffblur.app.bench._peak_rss_mb`), after a warm-up call that fills the compile caches
 and allocator pools. One dtype here (the half types run the same code as float32 with wider
 positions; tests/torch/test_degenerate_memory.py holds `bezier_scatter`, the op once reported at
 5 GB in bfloat16, in every dtype). Inputs as the script's: velocities up to 40 px in random
@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from diffblur.bench import _peak_rss_mb
+from diffblur.app.bench import _peak_rss_mb
 
 OPS = ("gather_blur", "reconstruct", "bezier_scatter", "warp_blend", "accumulate_warps")
 N = 4097

@@ -1,4 +1,4 @@
-"""The fused CPU reconstruct (diffblur._fused) against the pure tensor ops, both frameworks.
+"""The fused CPU reconstruct (diffblur.kernels.reconstruct) against the pure tensor ops, both frameworks.
 
 The pure ops are the reference: the fused path must give the same image and the same gradients
 w.r.t. color, velocity and depth (float64: to rounding; float32: to float32 tolerance), for every
@@ -17,7 +17,8 @@ pytest.importorskip("numba")
 import jax.numpy as jnp  # noqa: E402
 
 import jax_impl  # noqa: E402
-from diffblur import _fused  # noqa: E402
+from diffblur.kernels import reconstruct as reconstruct_kernel  # noqa: E402
+from diffblur.kernels.shared import _BLOCK  # noqa: E402
 import torch_impl  # noqa: E402
 from tests.tolerances import tolerance  # noqa: E402
 
@@ -41,14 +42,14 @@ CASES = {
 
 def _scene(dtype=np.float64, seed=0, width=WIDTH):
     """Two depth layers, a fast block over a slowly drifting background, one still corner tile; a
-    wider image gets a second fast block across the kernels' first block boundary (_fused._BLOCK)."""
+    wider image gets a second fast block across the kernels' first block boundary (_BLOCK)."""
     rng = np.random.default_rng(seed)
     color = rng.random((BATCH, CHANNELS, HEIGHT, width))
     velocity = np.zeros((BATCH, 2, HEIGHT, width))
     velocity[:, 0] = 0.7
     velocity[:, :, 3:8, 4:10] = rng.uniform(-6, 6, size=(BATCH, 2, 1, 1))
-    if width > _fused._BLOCK:
-        velocity[:, :, 1:9, _fused._BLOCK - 7 : _fused._BLOCK + 5] = rng.uniform(-6, 6, size=(BATCH, 2, 1, 1))
+    if width > _BLOCK:
+        velocity[:, :, 1:9, _BLOCK - 7 : _BLOCK + 5] = rng.uniform(-6, 6, size=(BATCH, 2, 1, 1))
     velocity[:, :, :, :] += rng.normal(0, 0.3, size=velocity.shape)
     velocity[:, :, 8:, 10:14] = 0.0  # a still region
     depth = np.where(velocity[:, :1] ** 2 > 4.0, 1.0, 2.0) + rng.uniform(0, 0.05, size=(BATCH, 1, HEIGHT, width))
@@ -97,9 +98,9 @@ def test_jax_fused_matches_pure_float64_under_jit(case):
 
 @pytest.mark.parametrize("case", ["default", "own directions", "adaptive, early out", "adaptive, classes past a middle"])
 def test_rows_wider_than_one_block(case):
-    """The kernels run each row in blocks of at most _fused._BLOCK pixels that end where the tiles'
+    """The kernels run each row in blocks of at most _BLOCK pixels that end where the tiles'
     tap count changes: several blocks, a partial last one, adaptive classes side by side."""
-    arrays = _scene(width=_fused._BLOCK + 23)
+    arrays = _scene(width=_BLOCK + 23)
     _assert_close(_torch_run(arrays, CASES[case], True), _torch_run(arrays, CASES[case], False), FUSED_FLOAT64)
 
 
@@ -197,7 +198,7 @@ def test_both_frameworks_run_one_compiled_kernel_per_dtype():
     arrays = _scene()
     _torch_run(arrays, CASES["default"], fused=True)
     _jax_run(arrays, CASES["default"], fused=True)
-    for kernel in (_fused._reconstruct_forward, _fused._reconstruct_backward):
+    for kernel in (reconstruct_kernel._reconstruct_forward, reconstruct_kernel._reconstruct_backward):
         float64_types = {signature for signature in kernel.signatures if str(signature[1].dtype) == "float64"}
         assert len(float64_types) == 1, float64_types
 
@@ -224,8 +225,8 @@ def test_jax_backward_computes_only_the_gradients_asked_for(wanted, monkeypatch)
     under jit too; they match the tensor ops'."""
     arrays = _scene()
     asked = []
-    backward = _fused.reconstruct_backward
-    monkeypatch.setattr(_fused, "reconstruct_backward", lambda *a, needs, **k: asked.append(needs) or backward(*a, needs=needs, **k))
+    backward = reconstruct_kernel.reconstruct_backward
+    monkeypatch.setattr(reconstruct_kernel, "reconstruct_backward", lambda *a, needs, **k: asked.append(needs) or backward(*a, needs=needs, **k))
     names = ("color", "velocity", "depth")
     argnums = tuple(names.index(name) for name in wanted)
     results = []

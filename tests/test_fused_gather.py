@@ -1,4 +1,4 @@
-"""The fused CPU gather_blur (diffblur._fused) against the pure tensor ops, both frameworks.
+"""The fused CPU gather_blur (diffblur.kernels.gather) against the pure tensor ops, both frameworks.
 
 The pure ops are the reference: the fused path must give the same image and the same gradients
 w.r.t. color, velocity and a shutter's parameters (float64: to rounding; float32: to float32
@@ -184,7 +184,7 @@ def test_batch_items_do_not_mix():
 
 def test_kernel_tile_classes_are_the_shared_rule():
     """The kernel sizes gather's adaptive classes itself; they must be tile_sample_counts' classes."""
-    from diffblur import _fused
+    from diffblur.kernels import gather as gather_kernel
     from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED, adaptive_classes, tile_sample_counts
 
     rng = np.random.default_rng(5)
@@ -194,7 +194,7 @@ def test_kernel_tile_classes_are_the_shared_rule():
     classes = adaptive_classes(True, 31)
     speed = torch_impl.tile_max(torch.tensor(velocity), ADAPTIVE_TILE).norm(dim=1).numpy()
     expected = tile_sample_counts(speed, classes, STILL_SPEED, np)
-    got = _fused._gather_counts(velocity, 31, classes, STILL_SPEED, ADAPTIVE_TILE)
+    got = gather_kernel._gather_counts(velocity, 31, classes, STILL_SPEED, ADAPTIVE_TILE)
     assert set(np.unique(expected)) >= {0, 7, 15}
     np.testing.assert_array_equal(got, expected)
 
@@ -219,12 +219,12 @@ def test_torch_backward_computes_only_the_gradients_asked_for(wanted):
 def test_jax_backward_computes_only_the_gradients_asked_for(wanted, monkeypatch):
     """JAX's rule asks the kernel for the differentiated inputs' gradients only (symbolic zeros),
     under jit too; they match the tensor ops'."""
-    from diffblur import _fused
+    from diffblur.kernels import gather as gather_kernel
 
     arrays = _scene()
     asked = []
-    backward = _fused.gather_backward
-    monkeypatch.setattr(_fused, "gather_backward", lambda *a, needs, **k: asked.append(needs) or backward(*a, needs=needs, **k))
+    backward = gather_kernel.gather_backward
+    monkeypatch.setattr(gather_kernel, "gather_backward", lambda *a, needs, **k: asked.append(needs) or backward(*a, needs=needs, **k))
     argnums = tuple(("color", "velocity").index(name) for name in wanted)
     results = []
     for fused in (True, False):

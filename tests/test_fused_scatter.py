@@ -1,4 +1,4 @@
-"""The fused CPU splats of bezier_scatter (diffblur._fused_scatter) against the pure tensor ops, both
+"""The fused CPU splats of bezier_scatter (diffblur.kernels.scatter) against the pure tensor ops, both
 frameworks.
 
 The pure ops are the reference: the fused path must give the same image and the same gradients
@@ -20,7 +20,7 @@ import jax.numpy as jnp  # noqa: E402
 
 import jax_impl  # noqa: E402
 import torch_impl  # noqa: E402
-from diffblur import _fused_scatter  # noqa: E402
+from diffblur.kernels import scatter as scatter_kernel  # noqa: E402
 from diffblur.shutters import LinearRamp  # noqa: E402
 from tests.tolerances import tolerance  # noqa: E402
 
@@ -205,13 +205,13 @@ def kernel_calls(monkeypatch):
     """Counts the fused kernels' forward and backward runs (JAX's callbacks look them up per call)."""
     calls = {"forward": 0, "backward": 0}
     for name, key in (("splat_forward", "forward"), ("splat_backward", "backward")):
-        original = getattr(_fused_scatter, name)
+        original = getattr(scatter_kernel, name)
 
         def counted(*args, _original=original, _key=key, **kwargs):
             calls[_key] += 1
             return _original(*args, **kwargs)
 
-        monkeypatch.setattr(_fused_scatter, name, counted)
+        monkeypatch.setattr(scatter_kernel, name, counted)
     return calls
 
 
@@ -258,7 +258,7 @@ def test_batch_items_do_not_mix():
 
 def _refusals(monkeypatch, cause):
     if cause == "numba":
-        monkeypatch.setattr(_fused_scatter, "numba", None)
+        monkeypatch.setattr(scatter_kernel, "numba", None)
         return "numba is not installed", "numba is not installed"
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     return None, "JAX's default backend is gpu"

@@ -1,4 +1,4 @@
-"""The Mitsuba ground truth (`diffblur.mitsuba_scenes`, the optional extra `diffblur[mitsuba]`):
+"""The Mitsuba ground truth (`diffblur.scenes.mitsuba`, the optional extra `diffblur[mitsuba]`):
 the four scenes at 64 x 64, their buffers in the project's conventions, the projection checked
 against the renderer itself, and the on-disk cache."""
 
@@ -12,7 +12,7 @@ pytest.importorskip("mitsuba")
 
 from diffblur import conventions  # noqa: E402
 from diffblur.metrics import psnr  # noqa: E402
-from diffblur.mitsuba_scenes import MITSUBA_SCENES, mitsuba_buffers, mitsuba_scene, projection_check, render_mitsuba  # noqa: E402
+from diffblur.scenes.mitsuba import MITSUBA_SCENES, mitsuba_buffers, mitsuba_scene, projection_check, render_mitsuba  # noqa: E402
 
 SIZE = 64
 
@@ -96,9 +96,9 @@ def test_render_is_deterministic_for_a_seed():
 
 
 def test_benchmark_section_is_written_and_replaced(tmp_path):
-    """`python -m diffblur.mitsuba_bench` in small (one scene, 24 x 24): every method, the targets' tables,
+    """`python -m diffblur.app.mitsuba_bench` in small (one scene, 24 x 24): every method, the targets' tables,
     written into a markdown file in place of an older section, and kept by `kept_section`."""
-    from diffblur.mitsuba_bench import BEGIN, END, METHODS, kept_section, measure, section, write_section
+    from diffblur.app.mitsuba_bench import BEGIN, END, METHODS, kept_section, measure, section, write_section
 
     results = measure(size=24, backends=("torch",), scenes=("crossing",), cache_dir=tmp_path, repeats=1)
     assert {r["method"] for r in results["rows"]} == set(METHODS)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from diffblur.cli import main
+from diffblur.app.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
 README = (ROOT / "README.md").read_text()
@@ -69,7 +69,7 @@ def test_the_layout_table_names_files_that_exist():
 
 
 def test_demo_writes_a_picture_and_a_table(tmp_path, capsys):
-    from diffblur.demo import DEMO_METHODS
+    from diffblur.app.demo import DEMO_METHODS
 
     # The fit stage (fitting.recover on both backends) is tested in tests/fitting; skipped here for time.
     assert main(["demo", "--out", str(tmp_path), "--size", "48", "--no-fit"]) == 0

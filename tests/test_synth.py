@@ -1,4 +1,4 @@
-"""`diffblur synth`: blurred/sharp pairs for deblurring datasets (diffblur/synth.py)."""
+"""`diffblur synth`: blurred/sharp pairs for deblurring datasets (diffblur/app/synth.py)."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import pytest
 pytest.importorskip("torch")
 from PIL import Image  # noqa: E402
 
-from diffblur import synth  # noqa: E402
-from diffblur.blur_image import read_picture  # noqa: E402
-from diffblur.cli import main  # noqa: E402
+from diffblur.app import synth  # noqa: E402
+from diffblur.app.blur_image import read_picture  # noqa: E402
+from diffblur.app.cli import main  # noqa: E402
 
 QUIET = dict(highlight_gain=(1.0, 1.0), shot_noise=(0.0, 0.0), read_noise=(0.0, 0.0))
 

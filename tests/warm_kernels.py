@@ -3,7 +3,7 @@
 conftest.py runs it in pytest-xdist's controller, float32 and float64 side by side, before the workers
 start. On a cold cache each worker otherwise compiled every kernel itself, both at once (~95 s of
 CPU per worker, measured). The arrays are tiny; the kernels' argument types are what the tests and
-both frameworks pass (`diffblur._fused.read_only` makes PyTorch's and JAX's arrays one type).
+both frameworks pass (`diffblur.kernels.shared.read_only` makes PyTorch's and JAX's arrays one type).
 """
 
 from __future__ import annotations

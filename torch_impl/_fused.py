@@ -1,5 +1,5 @@
-"""`reconstruct` and `gather_blur` on the fused CPU kernels (`diffblur._fused`) as PyTorch custom
-operators (`torch.library.custom_op`).
+"""`reconstruct` and `gather_blur` on the fused CPU kernels (`diffblur.kernels.reconstruct`,
+`diffblur.kernels.gather`) as PyTorch custom operators (`torch.library.custom_op`).
 
 Each kernel is an operator of its own, forward and backward (`diffblur::reconstruct_forward`,
 `diffblur::reconstruct_backward`, `diffblur::gather_forward`, `diffblur::gather_backward`), with a
@@ -20,7 +20,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from diffblur import _fused
+from diffblur.kernels import gather as gather_kernel
+from diffblur.kernels import reconstruct as reconstruct_kernel
 from diffblur._scatter_options import has_constant_parameters
 from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED
 from torch_impl._primitives import _safe_length, neighbor_max, tile_max
@@ -40,7 +41,7 @@ def _placement_reason(color: Tensor) -> str | None:
 
 def unfused_reason(o, color: Tensor, jitter: Tensor) -> str | None:
     """Why the fused reconstruct cannot run these inputs and options, or None when it can."""
-    reason = _fused.reconstruct_unfused_reason(o, _dtype_name(color)) or _placement_reason(color)
+    reason = reconstruct_kernel.reconstruct_unfused_reason(o, _dtype_name(color)) or _placement_reason(color)
     if reason is None and jitter.requires_grad:
         return "jitter requires grad (the fused kernel gives jitter no gradient)"
     return reason
@@ -48,7 +49,7 @@ def unfused_reason(o, color: Tensor, jitter: Tensor) -> str | None:
 
 def gather_unfused_reason(color: Tensor, sampling: str, pyramid: bool) -> str | None:
     """Why the fused gather_blur cannot run these inputs and options, or None when it can."""
-    return _fused.gather_unfused_reason(sampling, pyramid, _dtype_name(color)) or _placement_reason(color)
+    return gather_kernel.gather_unfused_reason(sampling, pyramid, _dtype_name(color)) or _placement_reason(color)
 
 
 def _array(tensor: Tensor):
@@ -91,9 +92,9 @@ def reconstruct_forward(
     min_radius: float,
     own_odd: bool,
 ) -> tuple[Tensor, Tensor]:
-    """`diffblur._fused.reconstruct_forward`: the image and the per-pixel weight sum (B, H, W)."""
+    """`diffblur.kernels.reconstruct.reconstruct_forward`: the image and the per-pixel weight sum (B, H, W)."""
     settings = dict(tile=tile, soft_z_extent=soft_z_extent, min_radius=min_radius, own_odd=own_odd)
-    out, weight = _fused.reconstruct_forward(*(_array(t) for t in (color, velocity, depth, neighbors, counts, jitter)), **settings)
+    out, weight = reconstruct_kernel.reconstruct_forward(*(_array(t) for t in (color, velocity, depth, neighbors, counts, jitter)), **settings)
     return _tensor(out), _tensor(weight)
 
 
@@ -122,12 +123,12 @@ def reconstruct_backward(
     need_velocity: bool,
     need_depth: bool,
 ) -> tuple[Tensor, Tensor]:
-    """`diffblur._fused.reconstruct_backward`: (B, C + 3, H, W), the gradients w.r.t. colour,
+    """`diffblur.kernels.reconstruct.reconstruct_backward`: (B, C + 3, H, W), the gradients w.r.t. colour,
     velocity and depth stacked along the channels as the kernel writes them (those not asked for
     hold no meaning), and NeighborMax's (empty unless the velocity's is asked for)."""
     settings = dict(tile=tile, soft_z_extent=soft_z_extent, min_radius=min_radius, own_odd=own_odd)
     arrays = (_array(t) for t in (color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out))
-    total, grad_neighbors = _fused.reconstruct_backward_stacked(*arrays, needs=(need_color, need_velocity, need_depth), **settings)
+    total, grad_neighbors = reconstruct_kernel.reconstruct_backward_stacked(*arrays, needs=(need_color, need_velocity, need_depth), **settings)
     return _tensor(total), _nothing(color) if grad_neighbors is None else _tensor(grad_neighbors)
 
 
@@ -169,7 +170,7 @@ def fused_reconstruct(color: Tensor, velocity: Tensor, depth: Tensor, jitter: Te
     """reconstruct (options `o`, adaptive or not) on the fused kernel; see `unfused_reason`."""
     neighbors = neighbor_max(tile_max(velocity, o.tile))
     speed = _safe_length(neighbors.detach())[:, 0]
-    counts = _fused.tile_counts(speed, o, torch)
+    counts = reconstruct_kernel.tile_counts(speed, o, torch)
     settings = (int(o.tile), float(o.soft_z_extent), float(o.min_radius), o.directions == "neighbor_and_own")
     out, _ = reconstruct_forward(color, velocity, depth, neighbors, counts.to(torch.int32), jitter.expand(-1, 1, -1, -1), *settings)
     return out
@@ -184,9 +185,9 @@ def _gather_settings(samples: int, classes: list[int], still: float, tile: int) 
 
 @torch.library.custom_op("diffblur::gather_forward", mutates_args=(), device_types="cpu")
 def gather_forward(color: Tensor, velocity: Tensor, masses: Tensor, samples: int, classes: list[int], still: float, tile: int) -> Tensor:
-    """`diffblur._fused.gather_forward`. classes: the adaptive tap counts, empty for the full rate."""
+    """`diffblur.kernels.gather.gather_forward`. classes: the adaptive tap counts, empty for the full rate."""
     arrays = (_array(t) for t in (color, velocity, masses))
-    return _tensor(_fused.gather_forward(*arrays, **_gather_settings(samples, classes, still, tile)))
+    return _tensor(gather_kernel.gather_forward(*arrays, **_gather_settings(samples, classes, still, tile)))
 
 
 @gather_forward.register_fake
@@ -208,11 +209,11 @@ def gather_backward(
     need_velocity: bool,
     need_masses: bool,
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """`diffblur._fused.gather_backward`: the gradients w.r.t. colour, velocity and masses, each
+    """`diffblur.kernels.gather.gather_backward`: the gradients w.r.t. colour, velocity and masses, each
     empty where it is not asked for."""
     arrays = (_array(t) for t in (color, velocity, masses, grad_out))
     needs = (need_color, need_velocity, need_masses)
-    grads = _fused.gather_backward(*arrays, needs=needs, **_gather_settings(samples, classes, still, tile))
+    grads = gather_kernel.gather_backward(*arrays, needs=needs, **_gather_settings(samples, classes, still, tile))
     return tuple(_nothing(color) if g is None else _tensor(g) for g in grads)
 
 
@@ -240,10 +241,10 @@ _first_order_only(gather_backward, "gather_blur")
 
 @torch.compiler.assume_constant_result
 def _constant_mass_table(window, samples: int, classes: tuple[int, ...]) -> tuple[tuple[float, ...], ...]:
-    """`diffblur._fused.gather_mass_table` of a window with constant parameters, computed in NumPy
+    """`diffblur.kernels.gather.gather_mass_table` of a window with constant parameters, computed in NumPy
     (float64) as Python numbers, which torch.compile runs as Python and keeps as constants (it
     cannot trace the NumPy code)."""
-    return tuple(tuple(row) for row in _fused.gather_mass_table(window, samples, classes, np, np.float64).tolist())
+    return tuple(tuple(row) for row in gather_kernel.gather_mass_table(window, samples, classes, np, np.float64).tolist())
 
 
 def fused_gather(color: Tensor, velocity: Tensor, window, samples: int, classes: tuple[int, ...] | None, wide: torch.dtype) -> Tensor:
@@ -253,6 +254,6 @@ def fused_gather(color: Tensor, velocity: Tensor, window, samples: int, classes:
     if has_constant_parameters(window):
         table = torch.tensor(_constant_mass_table(window, samples, classes_used), dtype=wide, device=color.device)
     else:  # a shape parameter being fitted: the masses carry its gradient
-        table = _fused.gather_mass_table(window, samples, classes_used, torch, wide)
+        table = gather_kernel.gather_mass_table(window, samples, classes_used, torch, wide)
     table = table.to(color.dtype)
     return gather_forward(color, velocity, table, int(samples), list(classes or ()), float(STILL_SPEED), int(ADAPTIVE_TILE))

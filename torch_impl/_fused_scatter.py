@@ -1,4 +1,4 @@
-"""`bezier_scatter`'s splats on the fused CPU kernel (`diffblur._fused_scatter`) as PyTorch custom
+"""`bezier_scatter`'s splats on the fused CPU kernel (`diffblur.kernels.scatter`) as PyTorch custom
 operators (`diffblur::splat_forward`, `diffblur::splat_backward`, the second registered as the
 first's gradient), which `torch.compile` keeps as opaque calls in its graph instead of tracing the
 splats.
@@ -13,7 +13,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from diffblur import _fused_scatter
+from diffblur.kernels import scatter as scatter_kernel
 from torch_impl._fused import _first_order_only
 from torch_impl._primitives import _floor_extent
 
@@ -21,7 +21,7 @@ from torch_impl._primitives import _floor_extent
 def unfused_reason(color: Tensor) -> str | None:
     """Why the fused splats cannot run on these inputs now, or None when they can (under
     torch.compile too: the kernel is a custom operator)."""
-    reason = _fused_scatter.splat_unfused_reason(str(color.dtype).removeprefix("torch."))
+    reason = scatter_kernel.splat_unfused_reason(str(color.dtype).removeprefix("torch."))
     if reason is not None:
         return reason
     if color.device.type != "cpu":
@@ -35,9 +35,9 @@ def _array(tensor: Tensor):
 
 @torch.library.custom_op("diffblur::splat_forward", mutates_args=(), device_types="cpu")
 def splat_forward(color: Tensor, depth: Tensor, path: Tensor, masses: Tensor, extent: Tensor, moving: Tensor, arc: bool, paper: bool) -> Tensor:
-    """`diffblur._fused_scatter.splat_forward`: the sums (B, C + 1, H, W)."""
+    """`diffblur.kernels.scatter.splat_forward`: the sums (B, C + 1, H, W)."""
     arrays = (_array(t) for t in (color, depth, path, masses, extent, moving))
-    return torch.from_numpy(_fused_scatter.splat_forward(*arrays, arc=arc, paper=paper))
+    return torch.from_numpy(scatter_kernel.splat_forward(*arrays, arc=arc, paper=paper))
 
 
 @splat_forward.register_fake
@@ -50,10 +50,10 @@ def _(color, depth, path, masses, extent, moving, arc, paper):
 def splat_backward(
     color: Tensor, depth: Tensor, path: Tensor, masses: Tensor, extent: Tensor, moving: Tensor, grad_sums: Tensor, arc: bool, paper: bool
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
-    """`diffblur._fused_scatter.splat_backward`: the gradients w.r.t. color, depth, path, masses and
+    """`diffblur.kernels.scatter.splat_backward`: the gradients w.r.t. color, depth, path, masses and
     extent."""
     arrays = (_array(t) for t in (color, depth, path, masses, extent, moving, grad_sums))
-    return tuple(torch.from_numpy(g) for g in _fused_scatter.splat_backward(*arrays, arc=arc, paper=paper))
+    return tuple(torch.from_numpy(g) for g in scatter_kernel.splat_backward(*arrays, arc=arc, paper=paper))
 
 
 @splat_backward.register_fake
@@ -78,7 +78,7 @@ _first_order_only(splat_backward, "bezier_scatter")
 
 def _path(kind: str, terms: tuple) -> Tensor:
     """The kernel's (B, P, H, W) path: the arc's centre and angle, or the four power-basis terms
-    (zeros for those the degree lacks; see `diffblur._fused_scatter.BEZIER_CHANNELS`)."""
+    (zeros for those the degree lacks; see `diffblur.kernels.scatter.BEZIER_CHANNELS`)."""
     if kind == "arc":
         return torch.cat(terms, dim=1)
     like = next(term for term in terms if term is not None)

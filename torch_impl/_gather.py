@@ -52,7 +52,7 @@ def gather_blur(
         pyramid: where the taps are farther apart than a pixel (2 |V| / samples > 1), read the
             colour from a pre-filtered pyramid level (seed 001's texture-space blur), trilinearly,
             so fewer taps than pixels travelled still give a smooth streak; needs "bilinear".
-        fused: run the gather and its backward in one parallel CPU loop (`diffblur._fused`,
+        fused: run the gather and its backward in one parallel CPU loop (`diffblur.kernels.gather`,
             numba) instead of tensor ops: same result and gradients (tested, the shutter's
             parameters included). None (default): fused where it applies (CPU, float32/float64,
             bilinear, no pyramid; any shutter, adaptive sampling included; eagerly and under
@@ -84,7 +84,7 @@ def gather_blur(
     classes = adaptive_classes(adaptive, samples)
     pyramid = pyramid_option(pyramid, adaptive, sampling)
     if fused is not False:
-        from diffblur._fused import use_fused
+        from diffblur.kernels.shared import use_fused
         from torch_impl._fused import fused_gather, gather_unfused_reason
 
         if use_fused("gather_blur", fused, gather_unfused_reason(color, sampling, pyramid)):

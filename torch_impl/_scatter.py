@@ -273,7 +273,7 @@ def bezier_scatter(
             the sum in both (they are their own level layer, in front of what passes behind them);
             "paper" has no layers. "layers" splats three times (nearer, passed, all).
         fused: sum the splats and their backward in one parallel CPU loop each
-            (`diffblur._fused_scatter`, numba), with the same result and gradients (tested) and
+            (`diffblur.kernels.scatter`, numba), with the same result and gradients (tested) and
             O(pixels) memory, faster on the CPU (timings: docs/fused.md). The normalisation and the fill stay tensor ops.
             None (default): fused where it applies (CPU, float32/float64; under torch.compile
             too, where the kernel and its backward are custom operators), tensor ops elsewhere. True: fused or a ValueError saying why not.
@@ -335,7 +335,7 @@ def bezier_scatter(
         _finite_values("background", background)
 
     if fused is not False:
-        from diffblur._fused import use_fused
+        from diffblur.kernels.shared import use_fused
         from torch_impl._fused_scatter import unfused_reason
 
         fused = use_fused("bezier_scatter", fused, unfused_reason(color))

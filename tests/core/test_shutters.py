@@ -295,7 +295,10 @@ def test_erf_series_matches_math_erf():
 @needs_both
 def test_erf_uses_each_frameworks_own_and_agrees_with_math_erf():
     """Torch tensors and JAX arrays take the framework's erf (one op, with its derivative
-    2/sqrt(pi) exp(-x^2)); the values match math.erf on both signs."""
+    2/sqrt(pi) exp(-x^2)); the values match math.erf on both signs. JAX's is registered by
+    `jax_impl` (the core imports no framework)."""
+    import jax_impl  # noqa: F401  (registers jax.scipy.special.erf with diffblur.shutters)
+
     x = np.concatenate([np.linspace(-7, 7, 57), [1e-8, -1e-8]])
     expected = [math.erf(v) for v in x]
     xt = torch.tensor(x, dtype=torch.float64, requires_grad=True)

@@ -183,7 +183,7 @@ def test_torch_gradcheck(case):
     )
 
 
-#: Ops whose default CPU path is a fused kernel (diffblur._fused, diffblur._fused_scatter), by case-name prefix.
+#: Ops whose default CPU path is a fused kernel (diffblur.kernels), by case-name prefix.
 FUSED_OPS = ("reconstruct", "gather_blur", "bezier_scatter")
 
 

@@ -218,7 +218,7 @@ def test_bad_arguments():
 
 
 def test_cli_writes_parameters_and_a_picture(tmp_path, translation32):
-    from diffblur.cli import main
+    from diffblur.app.cli import main
 
     s, _, truth = translation32
     np.save(tmp_path / "sharp.npy", s.color)

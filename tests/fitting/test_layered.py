@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import fitting
-from diffblur._reference_scatter import still_fill
-from diffblur._textures import pad
+from diffblur.reference._scatter import still_fill
+from diffblur.scenes._textures import pad
 from diffblur.shutters import LinearRamp, Trapezoid, get_shutter
 from diffblur.scenes import Camera, ImageTexture, Layer, Scene, Static, Translation, checkers, photo, render_buffers
 from fitting import _backends, _models

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import fitting
-from diffblur._textures import pad
+from diffblur.scenes._textures import pad
 from diffblur.scenes import ImageTexture, Layer, Scene, Static, Translation, photo, render_buffers
 from fitting import scenes
 from fitting._models import depth_layers

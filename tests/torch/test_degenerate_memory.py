@@ -14,7 +14,7 @@ import pytest
 import torch
 
 import torch_impl
-from diffblur.bench import _peak_rss_mb
+from diffblur.app.bench import _peak_rss_mb
 
 
 @pytest.mark.parametrize("shape", [(1, 4097), (4097, 1)], ids=["1x4097", "4097x1"])

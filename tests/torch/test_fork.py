@@ -2,7 +2,7 @@
 process ran the fused ops, gives the parent's batch.
 
 Before issue 25 numba used GNU OpenMP, which is not fork-safe: the workers died ("Terminating: fork()
-called from a process already using GNU OpenMP") and the DataLoader raised. `diffblur._fused` now
+called from a process already using GNU OpenMP") and the DataLoader raised. `diffblur.kernels.shared` now
 pins a fork-safe threading layer, and runs one kernel at a time (the workqueue layer aborts the
 process when two threads launch at once): the same run then has 2 threads build the batch together.
 The run is a subprocess with a timeout, so a hang fails.

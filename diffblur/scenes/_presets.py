@@ -9,9 +9,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from diffblur._motion import Affine, Camera, CurvedPath, InverseDepthPlane, Rotation, Static, Translation
-from diffblur._render import Layer, Scene
-from diffblur._textures import ImageTexture, checkers, coverage, pad, photo, stripes
+from diffblur.scenes._motion import Affine, Camera, CurvedPath, InverseDepthPlane, Rotation, Static, Translation
+from diffblur.scenes._render import Layer, Scene
+from diffblur.scenes._textures import ImageTexture, checkers, coverage, pad, photo, stripes
 
 __all__ = ["PRESETS", "build_preset"]
 

@@ -6,6 +6,9 @@ finite differences of these functions to check the backends' gradients.
 
 Conventions (see `diffblur.conventions`): arrays are NCHW, velocity channel 0 is x, depth is
 positive (larger = farther).
+
+This module holds the primitives, `gather_blur` and `reconstruct`; `_scatter` holds
+`bezier_scatter` and `_warp` `warp_blend` and `accumulate_warps`, all exported here.
 """
 
 from __future__ import annotations
@@ -391,10 +394,10 @@ def reconstruct(
     return out
 
 
-from diffblur._reference_scatter import bezier_control_points, bezier_scatter  # noqa: E402
+from diffblur.reference._scatter import bezier_control_points, bezier_scatter  # noqa: E402
 
 __all__ += ["bezier_control_points", "bezier_scatter"]
 
-from diffblur._reference_warp import accumulate_warps, warp_blend  # noqa: E402
+from diffblur.reference._warp import accumulate_warps, warp_blend  # noqa: E402
 
 __all__ += ["accumulate_warps", "warp_blend"]

@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from diffblur._presets import PRESETS
+from diffblur.scenes._presets import PRESETS
 from diffblur.metrics import color_wheel, to_display, velocity_to_color
 
 __all__ = ["save_gallery"]

@@ -23,9 +23,9 @@ import math
 import numpy as np
 
 from diffblur import checks
-from diffblur._motion import Rotation
-from diffblur._render import Layer, Scene
-from diffblur._textures import FunctionTexture
+from diffblur.scenes._motion import Rotation
+from diffblur.scenes._render import Layer, Scene
+from diffblur.scenes._textures import FunctionTexture
 from diffblur.shutters import ShutterWindow, get_shutter
 
 __all__ = ["orbiting_disk_density", "orbiting_disk_scene"]

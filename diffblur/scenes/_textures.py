@@ -15,30 +15,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from diffblur.metrics import srgb_to_linear
+
 __all__ = [
     "FunctionTexture",
     "ImageTexture",
     "checkers",
     "coverage",
-    "linear_to_srgb",
     "photo",
-    "srgb_to_linear",
     "stripes",
 ]
 
 PHOTOS = ("astronaut", "coffee", "chelsea", "rocket", "camera")
-
-
-def srgb_to_linear(encoded: np.ndarray) -> np.ndarray:
-    """sRGB-encoded values in [0, 1] to linear intensities (IEC 61966-2-1)."""
-    encoded = np.asarray(encoded, dtype=np.float64)
-    return np.where(encoded <= 0.04045, encoded / 12.92, ((encoded + 0.055) / 1.055) ** 2.4)
-
-
-def linear_to_srgb(linear: np.ndarray) -> np.ndarray:
-    """Linear intensities to sRGB-encoded values, clipped to [0, 1] first (for display)."""
-    linear = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)
-    return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
 
 
 @functools.lru_cache(maxsize=8)

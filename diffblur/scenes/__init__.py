@@ -15,6 +15,10 @@ project's conventions (NumPy, NCHW, float64) with the accumulated ground truth `
 Scenes are built from `Layer`s (a texture, a depth, a motion) and a `Camera`; `render`, `trace` and
 `accumulate` work on any `Scene`. `orbiting_disk_density` is seed 004's exact time-integrated
 orbiting disk, and `orbiting_disk_scene` the same disk as a scene, to check the accumulation against.
+
+The package's private modules hold the parts (`_render`, `_textures`, `_motion`, `_presets`, `_disk`,
+`_gallery`); `diffblur.scenes.mitsuba` (the `mitsuba` extra, not imported here) renders 3D scenes
+with Mitsuba 3 into the same buffers.
 """
 
 from __future__ import annotations
@@ -25,11 +29,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from diffblur import checks
-from diffblur._disk import orbiting_disk_density, orbiting_disk_scene
-from diffblur._motion import Affine, Camera, CurvedPath, InverseDepthPlane, Motion, Rotation, Static, Translation
-from diffblur._presets import PRESETS, build_preset
-from diffblur._render import FAR_DEPTH, MAX_STEP, Frame, Layer, Scene, accumulate, render, required_instants, trace
-from diffblur._textures import FunctionTexture, ImageTexture, checkers, linear_to_srgb, photo, srgb_to_linear, stripes
+from diffblur.metrics import linear_to_srgb, srgb_to_linear
+from diffblur.scenes._disk import orbiting_disk_density, orbiting_disk_scene
+from diffblur.scenes._motion import Affine, Camera, CurvedPath, InverseDepthPlane, Motion, Rotation, Static, Translation
+from diffblur.scenes._presets import PRESETS, build_preset
+from diffblur.scenes._render import FAR_DEPTH, MAX_STEP, Frame, Layer, Scene, accumulate, render, required_instants, trace
+from diffblur.scenes._textures import FunctionTexture, ImageTexture, checkers, photo, stripes
 from diffblur.shutters import ShutterWindow, get_shutter
 
 __all__ = [
@@ -173,7 +178,7 @@ def make_scene(
 def save_preset_gallery(out_dir: str | os.PathLike, *, height: int = 128, width: int = 128) -> str:
     """Write preset_gallery.png into out_dir: per preset (rows) the sharp frame, the target, the
     velocity as a colour wheel and the depth. Returns the PNG's path."""
-    from diffblur._gallery import save_gallery
+    from diffblur.scenes._gallery import save_gallery
 
     height, width = _check_size(height, width)
     return save_gallery(out_dir, height=height, width=width)

@@ -13,7 +13,7 @@ import numpy as np
 
 from diffblur import metrics
 from diffblur.scenes import make_scene
-from diffblur.timing import median_ms
+from diffblur.app.timing import median_ms
 
 
 @dataclass(frozen=True)

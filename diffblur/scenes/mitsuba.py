@@ -76,7 +76,7 @@ def _mitsuba() -> Any:
     try:
         import mitsuba as mi
     except ImportError as error:  # pragma: no cover - the extra is part of dev
-        raise ImportError("diffblur.mitsuba_scenes needs Mitsuba 3: pip install 'diffblur[mitsuba]'") from error
+        raise ImportError("diffblur.scenes.mitsuba needs Mitsuba 3: pip install 'diffblur[mitsuba]'") from error
     if mi.variant() != "scalar_rgb":
         mi.set_variant("scalar_rgb")
     return mi

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from diffblur import checks
-from diffblur._textures import linear_to_srgb, srgb_to_linear
+from diffblur.metrics import linear_to_srgb, srgb_to_linear
 from diffblur.shutters import SHUTTERS
 
 MOTIONS = ("pan", "shake", "objects")
@@ -279,7 +279,7 @@ def _write(path: Path, pixels: np.ndarray) -> None:
 
 def _sources(images: list[Path], index: int, segmentation: Path | None, sequence: bool, estimate: bool):
     """The labels or flows of images[index] (None when it has none)."""
-    from diffblur.blur_image import read_picture
+    from diffblur.app.blur_image import read_picture
 
     image = images[index]
     if segmentation is not None:
@@ -298,7 +298,7 @@ def _sources(images: list[Path], index: int, segmentation: Path | None, sequence
 
 def _one(job: tuple) -> dict:
     images, index, out_dir, seed, options, segmentation, sequence, estimate = job
-    from diffblur.blur_image import read_picture
+    from diffblur.app.blur_image import read_picture
 
     image = images[index]
     labels, flows = _sources(images, index, segmentation, sequence, estimate)
@@ -363,7 +363,7 @@ def synthesize_folder(in_dir: str | os.PathLike, out_dir: str | os.PathLike, *, 
 def reproduce(json_path: str | os.PathLike, in_dir: str | os.PathLike, *, segmentation: str | os.PathLike | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The pair a JSON record describes, made again from its source photograph in `in_dir` (and
     its segmentation picture, or the flows written next to the JSON)."""
-    from diffblur.blur_image import read_picture
+    from diffblur.app.blur_image import read_picture
 
     params = json.loads(Path(json_path).read_text())
     image = Path(in_dir) / params["source"]

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from diffblur._textures import linear_to_srgb, srgb_to_linear
+from diffblur.metrics import linear_to_srgb, srgb_to_linear
 
 #: Depth of white and black in a painted depth picture.
 PAINTED_DEPTH_NEAR, PAINTED_DEPTH_FAR = 1.0, 10.0

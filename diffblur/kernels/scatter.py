@@ -3,10 +3,11 @@
 The tensor ops splat every point of every moving pixel's curve with ~40 full-resolution ops and
 one scatter-add per chunk of points (seconds at 1280x720 on 2 cores); the backward transposes that
 scatter-add. These kernels sum the splats in one parallel loop over source pixels, and their
-hand-written backward in a second one. Only the accumulation is fused: the power-basis terms of the
-Bezier, the shutter's masses, the `moving` mask, the normalisation and the fill stay tensor ops, so
-autograd carries the kernels' gradients w.r.t. the terms and the masses back to the offsets and the
-shutter's parameters exactly as on the pure path.
+hand-written backward in a second one (with the numba set-up of `diffblur.kernels.shared`). Only
+the accumulation is fused: the power-basis terms of the Bezier, the shutter's masses, the `moving`
+mask, the normalisation and the fill stay tensor ops, so autograd carries the kernels' gradients
+w.r.t. the terms and the masses back to the offsets and the shutter's parameters exactly as on the
+pure path.
 
 A source pixel's point k at time t_k (`_scatter_options.point_times`) sits at p(t_k) on its path and
 splats omega = bilinear * soft_depth_compare(destination depth, source depth, extent) * weight, with
@@ -32,8 +33,8 @@ import math
 
 import numpy as np
 
-from diffblur._fused import _inline, _jit, _length, _soft_depth_compare, _threads, numba, read_only, row_order
 from diffblur._scatter_options import point_times
+from diffblur.kernels.shared import _inline, _jit, _length, _soft_depth_compare, _threads, numba, read_only, row_order
 
 __all__ = ["ARC_CHANNELS", "BEZIER_CHANNELS", "splat_backward", "splat_forward", "splat_unfused_reason"]
 

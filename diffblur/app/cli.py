@@ -9,7 +9,7 @@ import numpy as np
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from diffblur.demo import format_table, run_demo
+    from diffblur.app.demo import format_table, run_demo
 
     path, results, fits = run_demo(args.out, scene_name=args.scene, size=args.size, fit=not args.no_fit)
     print(format_table(results, fits))
@@ -25,7 +25,7 @@ def _gallery(args: argparse.Namespace) -> int:
 
 
 def _blur(args: argparse.Namespace) -> int:
-    from diffblur.blur_image import DEPTH_METHODS, blur_image, check_output_path, default_method, load_inputs, method_options, write_picture
+    from diffblur.app.blur_image import DEPTH_METHODS, blur_image, check_output_path, default_method, load_inputs, method_options, write_picture
 
     # Everything the command line decides is checked before the photograph is read and blurred.
     depth_given = args.depth_file is not None or args.depth_image is not None
@@ -53,7 +53,7 @@ def _blur(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from diffblur.bench import run_benchmarks
+    from diffblur.app.bench import run_benchmarks
 
     scenes = tuple(args.scenes.split(",")) if args.scenes else None
     run_benchmarks(out_dir=args.out, quick=args.quick, height=args.size, width=args.size, scenes=scenes, backends=tuple(args.backends.split(",")), repeats=args.repeats, targets=args.targets, threads=args.threads)
@@ -64,7 +64,7 @@ def _bench(args: argparse.Namespace) -> int:
 def _synth(args: argparse.Namespace) -> int:
     import time
 
-    from diffblur.synth import SynthOptions, synthesize_folder
+    from diffblur.app.synth import SynthOptions, synthesize_folder
 
     options = SynthOptions(
         motions=tuple(args.motions.split(",")),
@@ -89,14 +89,14 @@ def _synth(args: argparse.Namespace) -> int:
 
 def _add_synth_parser(commands) -> None:
     from diffblur.shutters import SHUTTERS
-    from diffblur.synth import MOTIONS
+    from diffblur.app.synth import MOTIONS
 
     synth = commands.add_parser(
         "synth",
         help="blurred/sharp pairs from sharp photographs, for deblurring datasets",
         description="For each image of IN_DIR: a seeded random motion, a camera model around the blur (inverse sRGB response, "
         "highlights past white, blur, saturation, Poisson-Gaussian noise, response, optional JPEG); writes NAME_sharp.png, "
-        "NAME_blurred.png (.jpg) and NAME.json with every parameter (diffblur.synth.reproduce makes the pair again).",
+        "NAME_blurred.png (.jpg) and NAME.json with every parameter (diffblur.app.synth.reproduce makes the pair again).",
     )
     synth.add_argument("in_dir", help="folder of sharp photographs (or of a sequence's frames with --sequence)")
     synth.add_argument("out_dir", help="folder for the pairs")
@@ -156,7 +156,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_blur_parser(commands) -> None:
-    from diffblur.blur_image import BACKENDS
+    from diffblur.app.blur_image import BACKENDS
     from diffblur.modules import METHOD_INPUTS
     from diffblur.shutters import SHUTTERS
 

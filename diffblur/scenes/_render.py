@@ -15,8 +15,8 @@ from typing import NamedTuple
 import numpy as np
 
 from diffblur import checks
-from diffblur._motion import Camera, InverseDepthPlane, Motion, Static
-from diffblur._textures import FunctionTexture, ImageTexture
+from diffblur.scenes._motion import Camera, InverseDepthPlane, Motion, Static
+from diffblur.scenes._textures import FunctionTexture, ImageTexture
 from diffblur.shutters import ShutterWindow, get_shutter, instants as shutter_instants
 
 __all__ = [

@@ -1,0 +1,609 @@
+"""The fused CPU kernels (numba) of `reconstruct`, behind the PyTorch and JAX ops' custom gradients.
+
+A tensor framework runs `reconstruct` as ~200 full-resolution elementwise ops per tap; on a 2-core
+CPU that cannot reach the 100 ms target at 1280x720 (BENCHMARKS.md), and JAX's backward is
+dominated by the scatter-add that transposes the bilinear reads. These kernels do the whole filter
+in one parallel loop over pixels, and its hand-written backward in a second one, each running a
+block of one row at a time as SIMD vectors (`diffblur.kernels.shared`: the pair layouts, the blocks,
+the scratch). They take and return NumPy arrays, so both backends share them: `torch_impl._fused`
+wraps them in an `autograd.Function`, `jax_impl._fused` in a `custom_vjp` over `pure_callback`.
+
+The pure tensor ops stay the reference: tests compare outputs and gradients of both paths. The
+kernels repeat the pure ops' arithmetic (the same clamps, floors and `where` branches, so the same
+one-sided derivatives at kinks) in float64, reading and writing the arrays' dtype.
+
+Scope, checked by `reconstruct_unfused_reason`: bilinear sampling, the box shutter, float32 or
+float64, no pyramid. The tap count is per tile (`counts`), which is how adaptive sampling and the
+early-out run here: a tile with count 0 returns the image and costs one copy.
+
+The backward scatters each tap's gradient to the 4 pixels it read, which may be anywhere in the
+image: each thread accumulates into its own full-size buffer, summed at the end, so the backward's
+memory is O(pixels x threads) (2 threads here), never O(pixels x taps).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from diffblur.conventions import CYLINDER_INNER, CYLINDER_OUTER, EPSILON
+from diffblur.kernels.shared import (
+    ChannelFloats,
+    Floats,
+    Ints,
+    _block_end,
+    _deinterleave_sum,
+    _inline,
+    _jit,
+    _length,
+    _pair_read,
+    _pair_read_slopes,
+    _pairs,
+    _scatter_chunk,
+    _soft_depth_compare,
+    _tap_corner,
+    _threads,
+    check_scratch,
+    numba,
+    read_only,
+    row_order,
+    scratch_for,
+)
+
+__all__ = [
+    "ReconstructBackwardScratch",
+    "ReconstructForwardScratch",
+    "reconstruct_backward",
+    "reconstruct_backward_stacked",
+    "reconstruct_forward",
+    "reconstruct_unfused_reason",
+    "tile_counts",
+]
+
+_INVERSE_CYLINDER_SPAN = 1.0 / (CYLINDER_OUTER - CYLINDER_INNER)
+
+
+def reconstruct_unfused_reason(o: Any, dtype_name: str) -> str | None:
+    """Why `reconstruct` with options `o` (`diffblur.taps.ReconstructOptions`) cannot take the
+    fused path, or None when it can. dtype_name: the image's dtype, as a string."""
+    from diffblur.shutters import Box
+
+    if numba is None:
+        return "numba is not installed"
+    if o.sampling != "bilinear":
+        return f"sampling={o.sampling!r} (the fused kernel is bilinear)"
+    if type(o.window) is not Box:
+        return f"shutter {o.window.name!r} (the fused kernel takes the box shutter)"
+    if o.pyramid:
+        return "pyramid=True"
+    if dtype_name not in ("float32", "float64"):
+        return f"dtype {dtype_name} (the fused kernel takes float32 and float64)"
+    return None
+
+
+def tile_counts(speed: Any, o: Any, xp: Any) -> Any:
+    """The kernel's taps per tile from the tiles' |NeighborMax| (any shape, numpy/torch/jax.numpy):
+    the adaptive classes, else the full rate, 0 where the early-out returns the image."""
+    from diffblur._adaptive import still_speed, tile_sample_counts
+
+    if o.classes is not None:
+        return tile_sample_counts(speed, o.classes, still_speed(o.early_out), xp)
+    # Without the early-out no tile is skipped: the full-rate filter runs on still tiles too.
+    return tile_sample_counts(speed, (o.samples,), still_speed(True) if o.early_out else -1.0, xp)
+
+
+@_inline
+def _floored_inverse(speed):
+    """1 / max(speed, EPSILON): the classifiers divide by the floored speed; one division per speed."""
+    return 1.0 / (speed if speed >= EPSILON else EPSILON)
+
+
+@_inline
+def _cone(distance, inverse):
+    u = 1.0 - distance * inverse
+    return 0.0 if u < 0.0 else (1.0 if u > 1.0 else u)
+
+
+@_inline
+def _cone_grad(distance, speed, inverse, grad):
+    """d cone / d distance and d cone / d speed, times grad (the pure op's one-sided rules). One
+    return of selects: a tuple merged from two returns is an alias to numba's parallel loops."""
+    u = 1.0 - distance * inverse
+    grad = grad if (u >= 0.0) & (u <= 1.0) else 0.0
+    d_speed = grad * distance * inverse * inverse if speed >= EPSILON else 0.0
+    return -grad * inverse, d_speed
+
+
+@_inline
+def _cylinder(distance, inverse):
+    q = (distance * inverse - CYLINDER_INNER) * _INVERSE_CYLINDER_SPAN
+    q = 0.0 if q < 0.0 else (1.0 if q > 1.0 else q)
+    return 1.0 - q * q * (3.0 - 2.0 * q)
+
+
+@_inline
+def _cylinder_grad(distance, speed, inverse, grad):
+    """As `_cone_grad`, for the cylinder."""
+    q = (distance * inverse - CYLINDER_INNER) * _INVERSE_CYLINDER_SPAN
+    d_q = grad * (-6.0 * q * (1.0 - q)) * _INVERSE_CYLINDER_SPAN if (q >= 0.0) & (q <= 1.0) else 0.0
+    d_speed = -d_q * distance * inverse * inverse if speed >= EPSILON else 0.0
+    return d_q * inverse, d_speed
+
+
+
+@_inline
+def _pixel_state(velocity, depth, neighbors, jitter, b, jb, y, x, tile, min_radius, chunk, p, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s):
+    """Pixel X's scratch entries p of chunk `chunk`: its jitter, NeighborMax v_N and |v_N|, V[X],
+    |V[X]|, the classifiers' floored inverse speed and Z[X]. Returns the classifiers' speed."""
+    jitter_s[chunk, p] = jitter[jb, 0, y, x]
+    nx = np.float64(neighbors[b, 0, y // tile, x // tile])
+    ny = np.float64(neighbors[b, 1, y // tile, x // tile])
+    nx_s[chunk, p] = nx
+    ny_s[chunk, p] = ny
+    speed_n_s[chunk, p] = _length(nx, ny)
+    vx = np.float64(velocity[b, 0, y, x])
+    vy = np.float64(velocity[b, 1, y, x])
+    vx_s[chunk, p] = vx
+    vy_s[chunk, p] = vy
+    length_x = _length(vx, vy)
+    length_x_s[chunk, p] = length_x
+    speed_x = length_x if length_x >= min_radius else min_radius
+    inverse_x_s[chunk, p] = _floored_inverse(speed_x)
+    z_x_s[chunk, p] = depth[b, 0, y, x]
+    return speed_x
+
+
+
+@_jit
+def _reconstruct_forward(
+    pairs, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, chunks, out, weight,
+    jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s, weight_s, total_s, index_s, below_s, fx_s, fy_s, alpha_s,
+):
+    """The *_s scratch arrays hold one block per chunk: (chunks, >= _BLOCK), total_s (chunks, C, >= _BLOCK).
+    own_odd is an int (0 or 1): see the note above on aliases."""
+    batch, channels, height, width = color.shape
+    stored = channels + 3
+    jitter_batch = jitter.shape[0]
+    inverse_extent = 1.0 / extent
+    rows = batch * height
+    last_x = width - 1.0
+    last_y = height - 1.0
+    for chunk in numba.prange(chunks):
+        for i in range(chunk * rows // chunks, (chunk + 1) * rows // chunks):
+            row = order[i]
+            b = row // height
+            y = row % height
+            jb = b if jitter_batch > 1 else 0
+            image_start = b * height * width * stored
+            start = 0
+            while start < width:
+                end = _block_end(counts, b, y // tile, start, width, tile)
+                size = end - start
+                count = counts[b, y // tile, start // tile]
+                if count == 0:  # the early-out: the image
+                    for x in range(start, end):
+                        for c in range(channels):
+                            out[b, c, y, x] = color[b, c, y, x]
+                        weight[b, y, x] = 0.0
+                    start = end
+                    continue
+                for p in range(size):  # each pixel's state: NeighborMax, V[X], |V[X]|, Z[X], j
+                    x = start + p
+                    speed_x = _pixel_state(velocity, depth, neighbors, jitter, b, jb, y, x, tile, min_radius, chunk, p, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s)
+                    w = 1.0 / speed_x
+                    weight_s[chunk, p] = w
+                    for c in range(channels):
+                        total_s[chunk, c, p] = w * color[b, c, y, x]
+                middle = (count - 1) // 2
+                step = 2.0 / (count + 1.0)
+                for k in range(count):
+                    if k == middle:
+                        continue
+                    own = own_odd * (k % 2)
+                    for p in range(size):  # vectorized: no branches, gathers
+                        t = -1.0 + (k + jitter_s[chunk, p] + 1.0) * step
+                        dx = vx_s[chunk, p] if own != 0 else nx_s[chunk, p]
+                        dy = vy_s[chunk, p] if own != 0 else ny_s[chunk, p]
+                        speed = length_x_s[chunk, p] if own != 0 else speed_n_s[chunk, p]
+                        column, row0, fx, fy, _, _ = _tap_corner((start + p) + dx * t, y + dy * t, last_x, last_y)
+                        index = image_start + (row0 * width + column) * stored
+                        below = width * stored if row0 < height - 1 else 0
+                        index_s[chunk, p] = index
+                        below_s[chunk, p] = below
+                        fx_s[chunk, p] = fx
+                        fy_s[chunk, p] = fy
+                        v_yx = _pair_read(pairs, index + channels, below, fx, fy)
+                        v_yy = _pair_read(pairs, index + channels + 1, below, fx, fy)
+                        z_y = _pair_read(pairs, index + channels + 2, below, fx, fy)
+                        length_y = math.sqrt(v_yx * v_yx + v_yy * v_yy)
+                        inverse_y = _floored_inverse(length_y if length_y >= min_radius else min_radius)
+                        inverse_x = inverse_x_s[chunk, p]
+                        z_x = z_x_s[chunk, p]
+                        distance = abs(t) * speed
+                        alpha = (
+                            _soft_depth_compare(z_x, z_y, extent, inverse_extent) * _cone(distance, inverse_y)
+                            + _soft_depth_compare(z_y, z_x, extent, inverse_extent) * _cone(distance, inverse_x)
+                            + _cylinder(distance, inverse_y) * _cylinder(distance, inverse_x) * 2.0
+                        )
+                        alpha_s[chunk, p] = alpha
+                        weight_s[chunk, p] += alpha
+                    for c in range(channels):
+                        for p in range(size):  # vectorized
+                            read = _pair_read(pairs, index_s[chunk, p] + c, below_s[chunk, p], fx_s[chunk, p], fy_s[chunk, p])
+                            total_s[chunk, c, p] += alpha_s[chunk, p] * read
+                for p in range(size):
+                    x = start + p
+                    w = weight_s[chunk, p]
+                    for c in range(channels):
+                        out[b, c, y, x] = total_s[chunk, c, p] / w
+                    weight[b, y, x] = w
+                start = end
+
+
+
+@_jit
+def _reconstruct_backward(
+    pairs, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, scatter_color, scatter_velocity, scatter_depth,
+    out, weight, grad_out, grads, grad_neighbors,
+    jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, g_total_s, out_s,
+    column_s, row_s, t_s, fx_s, fy_s, inside_x_s, inside_y_s, g_alpha_s, slope_x_s, slope_y_s, alpha_s, g_v_yx_s, g_v_yy_s, g_z_y_s,
+    g_speed_x_s, g_z_x_s, g_vx_s, g_vy_s, g_length_x_s, g_nx_s, g_ny_s, g_speed_n_s,
+):
+    """The forward's layout (pairs, blocks of one row as vectors, scratch arguments) for the hand-written
+    backward. Per tap index k: one vector loop places the taps, one per channel reads the colours, one
+    runs the classifiers' derivatives; then a scalar loop scatters the gradients of the 4 pixels each
+    tap read (lanes may collide, so it cannot be a vector scatter), for the inputs whose scatter_* flag
+    is 1 (ints: see the note above on aliases); the other inputs' gradients come out incomplete.
+    grads: (chunks, B, H, W, C + 3) zeros, one buffer per chunk of rows (C, V, Z gradients
+    interleaved); grad_neighbors: (chunks, B, 2, TH, TW) zeros; *_s scratch: (chunks, >= _BLOCK), g_total_s
+    and out_s (chunks, C, >= _BLOCK)."""
+    batch, channels, height, width = color.shape
+    stored = channels + 3
+    jitter_batch = jitter.shape[0]
+    inverse_extent = 1.0 / extent
+    chunks = grads.shape[0]
+    rows = batch * height
+    last_x = width - 1.0
+    last_y = height - 1.0
+    for chunk in numba.prange(chunks):
+        for i in range(chunk * rows // chunks, (chunk + 1) * rows // chunks):
+            row = order[i]
+            b = row // height
+            y = row % height
+            jb = b if jitter_batch > 1 else 0
+            image_start = b * height * width * stored
+            start = 0
+            while start < width:
+                end = _block_end(counts, b, y // tile, start, width, tile)
+                size = end - start
+                count = counts[b, y // tile, start // tile]
+                if count == 0:  # the early-out: out = C[X]
+                    for x in range(start, end):
+                        for c in range(channels):
+                            grads[chunk, b, y, x, c] += grad_out[b, c, y, x]
+                    start = end
+                    continue
+                for p in range(size):
+                    x = start + p
+                    speed_x = _pixel_state(velocity, depth, neighbors, jitter, b, jb, y, x, tile, min_radius, chunk, p, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s)
+                    speed_x_s[chunk, p] = speed_x
+                    # out = total / w: d total = g / w, d w = -sum(g out) / w; per tap alpha and
+                    # alpha C[Y] both enter, so d alpha = sum(g (C[Y] - out)) / w.
+                    w = np.float64(weight[b, y, x])
+                    g_center = 0.0
+                    for c in range(channels):
+                        g_total = grad_out[b, c, y, x] / w
+                        g_total_s[chunk, c, p] = g_total
+                        out_s[chunk, c, p] = out[b, c, y, x]
+                        g_center += g_total * (color[b, c, y, x] - out[b, c, y, x])
+                        grads[chunk, b, y, x, c] += g_total / speed_x
+                    g_speed_x_s[chunk, p] = -g_center / (speed_x * speed_x)
+                    g_z_x_s[chunk, p] = 0.0
+                    g_vx_s[chunk, p] = 0.0
+                    g_vy_s[chunk, p] = 0.0
+                    g_length_x_s[chunk, p] = 0.0
+                    g_nx_s[chunk, p] = 0.0
+                    g_ny_s[chunk, p] = 0.0
+                    g_speed_n_s[chunk, p] = 0.0
+                middle = (count - 1) // 2
+                step = 2.0 / (count + 1.0)
+                for k in range(count):
+                    if k == middle:
+                        continue
+                    own = own_odd * (k % 2)
+                    for p in range(size):  # vectorized: the taps' positions
+                        t = -1.0 + (k + jitter_s[chunk, p] + 1.0) * step
+                        px = (start + p) + (vx_s[chunk, p] if own != 0 else nx_s[chunk, p]) * t
+                        py = y + (vy_s[chunk, p] if own != 0 else ny_s[chunk, p]) * t
+                        column, row0, fx, fy, inside_x, inside_y = _tap_corner(px, py, last_x, last_y)
+                        column_s[chunk, p] = column
+                        row_s[chunk, p] = row0
+                        t_s[chunk, p] = t
+                        fx_s[chunk, p] = fx
+                        fy_s[chunk, p] = fy
+                        inside_x_s[chunk, p] = inside_x
+                        inside_y_s[chunk, p] = inside_y
+                        g_alpha_s[chunk, p] = 0.0
+                        slope_x_s[chunk, p] = 0.0
+                        slope_y_s[chunk, p] = 0.0
+                    for c in range(channels):
+                        for p in range(size):  # vectorized: the colours read
+                            row0 = row_s[chunk, p]
+                            index = image_start + (row0 * width + column_s[chunk, p]) * stored + c
+                            below = width * stored if row0 < height - 1 else 0
+                            slope_x, slope_y, c_y = _pair_read_slopes(pairs, index, below, fx_s[chunk, p], fy_s[chunk, p])
+                            g_total = g_total_s[chunk, c, p]
+                            g_alpha_s[chunk, p] += g_total * (c_y - out_s[chunk, c, p])
+                            slope_x_s[chunk, p] += g_total * slope_x  # times alpha below
+                            slope_y_s[chunk, p] += g_total * slope_y
+                    for p in range(size):  # vectorized: the classifiers and their derivatives
+                        row0 = row_s[chunk, p]
+                        index = image_start + (row0 * width + column_s[chunk, p]) * stored + channels
+                        below = width * stored if row0 < height - 1 else 0
+                        fx = fx_s[chunk, p]
+                        fy = fy_s[chunk, p]
+                        t = t_s[chunk, p]
+                        slope_vxx, slope_vxy, v_yx = _pair_read_slopes(pairs, index, below, fx, fy)
+                        slope_vyx, slope_vyy, v_yy = _pair_read_slopes(pairs, index + 1, below, fx, fy)
+                        slope_zx, slope_zy, z_y = _pair_read_slopes(pairs, index + 2, below, fx, fy)
+                        length_y = math.sqrt(v_yx * v_yx + v_yy * v_yy)
+                        speed_y = length_y if length_y >= min_radius else min_radius
+                        inverse_y = _floored_inverse(speed_y)
+                        speed_x = speed_x_s[chunk, p]
+                        inverse_x = inverse_x_s[chunk, p]
+                        z_x = z_x_s[chunk, p]
+                        distance = abs(t) * (length_x_s[chunk, p] if own != 0 else speed_n_s[chunk, p])
+                        front = _soft_depth_compare(z_x, z_y, extent, inverse_extent)
+                        behind = _soft_depth_compare(z_y, z_x, extent, inverse_extent)
+                        cone_y = _cone(distance, inverse_y)
+                        cone_x = _cone(distance, inverse_x)
+                        cylinder_y = _cylinder(distance, inverse_y)
+                        cylinder_x = _cylinder(distance, inverse_x)
+                        alpha = front * cone_y + behind * cone_x + cylinder_y * cylinder_x * 2.0
+                        g_alpha = g_alpha_s[chunk, p]
+                        # The classifiers.
+                        g_front = g_alpha * cone_y
+                        g_behind = g_alpha * cone_x
+                        front_slope = g_front * inverse_extent if (z_y - z_x >= 0.0) & (z_y - z_x <= extent) else 0.0
+                        behind_slope = g_behind * inverse_extent if (z_x - z_y >= 0.0) & (z_x - z_y <= extent) else 0.0
+                        g_z_y = behind_slope - front_slope
+                        g_distance, g_speed_y = _cone_grad(distance, speed_y, inverse_y, g_alpha * front)
+                        d_distance, g_speed_x = _cone_grad(distance, speed_x, inverse_x, g_alpha * behind)
+                        g_distance += d_distance
+                        d_distance, d_speed = _cylinder_grad(distance, speed_y, inverse_y, g_alpha * 2.0 * cylinder_x)
+                        g_distance += d_distance
+                        g_speed_y += d_speed
+                        d_distance, d_speed = _cylinder_grad(distance, speed_x, inverse_x, g_alpha * 2.0 * cylinder_y)
+                        g_distance += d_distance
+                        g_speed_x += d_speed
+                        # V[Y] through speed_y = max(|V[Y]|, min_radius).
+                        moving = (length_y >= min_radius) & (length_y > 0.0)
+                        g_v_yx = g_speed_y * v_yx / length_y if moving else 0.0
+                        g_v_yy = g_speed_y * v_yy / length_y if moving else 0.0
+                        g_fx = alpha * slope_x_s[chunk, p] + g_v_yx * slope_vxx + g_v_yy * slope_vyx + g_z_y * slope_zx
+                        g_fy = alpha * slope_y_s[chunk, p] + g_v_yx * slope_vxy + g_v_yy * slope_vyy + g_z_y * slope_zy
+                        # The tap position X + direction t (no gradient where clamped) and the
+                        # distance |t| speed; own (0 or 1) picks V[X] or NeighborMax.
+                        g_dx = g_fx * t * inside_x_s[chunk, p]
+                        g_dy = g_fy * t * inside_y_s[chunk, p]
+                        g_along = g_distance * abs(t)
+                        alpha_s[chunk, p] = alpha
+                        g_v_yx_s[chunk, p] = g_v_yx
+                        g_v_yy_s[chunk, p] = g_v_yy
+                        g_z_y_s[chunk, p] = g_z_y
+                        g_speed_x_s[chunk, p] += g_speed_x
+                        g_z_x_s[chunk, p] += front_slope - behind_slope
+                        g_vx_s[chunk, p] += g_dx * own
+                        g_vy_s[chunk, p] += g_dy * own
+                        g_length_x_s[chunk, p] += g_along * own
+                        g_nx_s[chunk, p] += g_dx * (1 - own)
+                        g_ny_s[chunk, p] += g_dy * (1 - own)
+                        g_speed_n_s[chunk, p] += g_along * (1 - own)
+                    for p in range(size):  # scalar: the 4 pixels each tap read
+                        row0 = row_s[chunk, p]
+                        column = column_s[chunk, p]
+                        row1 = min(row0 + 1, height - 1)
+                        column1 = min(column + 1, width - 1)
+                        fx = fx_s[chunk, p]
+                        fy = fy_s[chunk, p]
+                        alpha = alpha_s[chunk, p]
+                        if scatter_color != 0:
+                            for c in range(channels):
+                                _scatter_chunk(grads, chunk, b, c, row0, row1, column, column1, fx, fy, alpha * g_total_s[chunk, c, p])
+                        if scatter_velocity != 0:
+                            _scatter_chunk(grads, chunk, b, channels, row0, row1, column, column1, fx, fy, g_v_yx_s[chunk, p])
+                            _scatter_chunk(grads, chunk, b, channels + 1, row0, row1, column, column1, fx, fy, g_v_yy_s[chunk, p])
+                        if scatter_depth != 0:
+                            _scatter_chunk(grads, chunk, b, channels + 2, row0, row1, column, column1, fx, fy, g_z_y_s[chunk, p])
+                for p in range(size):  # each pixel's own V[X], Z[X] and NeighborMax
+                    x = start + p
+                    length_x = length_x_s[chunk, p]
+                    g_length_x = g_length_x_s[chunk, p]
+                    if length_x >= min_radius:
+                        g_length_x += g_speed_x_s[chunk, p]
+                    g_vx = g_vx_s[chunk, p]
+                    g_vy = g_vy_s[chunk, p]
+                    if length_x > 0.0:
+                        g_vx += g_length_x * vx_s[chunk, p] / length_x
+                        g_vy += g_length_x * vy_s[chunk, p] / length_x
+                    g_nx = g_nx_s[chunk, p]
+                    g_ny = g_ny_s[chunk, p]
+                    speed_n = speed_n_s[chunk, p]
+                    if speed_n > 0.0:
+                        g_nx += g_speed_n_s[chunk, p] * nx_s[chunk, p] / speed_n
+                        g_ny += g_speed_n_s[chunk, p] * ny_s[chunk, p] / speed_n
+                    grads[chunk, b, y, x, channels] += g_vx
+                    grads[chunk, b, y, x, channels + 1] += g_vy
+                    grads[chunk, b, y, x, channels + 2] += g_z_x_s[chunk, p]
+                    grad_neighbors[chunk, b, 0, y // tile, x // tile] += g_nx
+                    grad_neighbors[chunk, b, 1, y // tile, x // tile] += g_ny
+                start = end
+
+
+class ReconstructForwardScratch(NamedTuple):
+    """`_reconstruct_forward`'s scratch (its *_s parameters, in order): each pixel's state, its running
+    weight and colour total, and the current tap's read position and classifier."""
+
+    jitter: Floats
+    nx: Floats
+    ny: Floats
+    speed_n: Floats
+    vx: Floats
+    vy: Floats
+    length_x: Floats
+    inverse_x: Floats
+    z_x: Floats
+    weight: Floats
+    total: ChannelFloats
+    index: Ints
+    below: Ints
+    fx: Floats
+    fy: Floats
+    alpha: Floats
+
+
+class ReconstructBackwardScratch(NamedTuple):
+    """`_reconstruct_backward`'s scratch (its *_s parameters, in order): each pixel's state, the
+    output's gradient over the weight and the output, the current tap's position, reads and
+    classifier gradients, and the gradients accumulated for the pixel's own V[X], Z[X] and
+    NeighborMax."""
+
+    jitter: Floats
+    nx: Floats
+    ny: Floats
+    speed_n: Floats
+    vx: Floats
+    vy: Floats
+    length_x: Floats
+    speed_x: Floats
+    inverse_x: Floats
+    z_x: Floats
+    g_total: ChannelFloats
+    out: ChannelFloats
+    column: Ints
+    row: Ints
+    t: Floats
+    fx: Floats
+    fy: Floats
+    inside_x: Floats
+    inside_y: Floats
+    g_alpha: Floats
+    slope_x: Floats
+    slope_y: Floats
+    alpha: Floats
+    g_v_yx: Floats
+    g_v_yy: Floats
+    g_z_y: Floats
+    g_speed_x: Floats
+    g_z_x: Floats
+    g_vx: Floats
+    g_vy: Floats
+    g_length_x: Floats
+    g_nx: Floats
+    g_ny: Floats
+    g_speed_n: Floats
+
+
+check_scratch(_reconstruct_forward, ReconstructForwardScratch)
+check_scratch(_reconstruct_backward, ReconstructBackwardScratch)
+
+
+def reconstruct_forward(
+    color: np.ndarray,
+    velocity: np.ndarray,
+    depth: np.ndarray,
+    neighbors: np.ndarray,
+    counts: np.ndarray,
+    jitter: np.ndarray,
+    *,
+    tile: int,
+    soft_z_extent: float,
+    min_radius: float,
+    own_odd: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The reconstruction filter, fused. color (B, C, H, W), velocity (B, 2, H, W), depth (B, 1, H,
+    W), neighbors (B, 2, TH, TW) NeighborMax, counts (B, TH, TW) taps per tile (0: the image),
+    jitter (B or 1, 1, H, W), all C-contiguous in one float dtype (counts int32). Returns the
+    image and the per-pixel weight sum (B, H, W) that the backward needs."""
+    color, velocity, depth, neighbors, counts, jitter = read_only(color, velocity, depth, neighbors, counts, jitter)
+    batch, channels, height, width = color.shape
+    out = np.empty_like(color)
+    weight = np.empty((batch, height, width), dtype=color.dtype)
+    chunks = min(batch * height, _threads())
+    settings = (int(tile), float(soft_z_extent), float(min_radius), int(own_odd), row_order(batch * height), chunks)
+    scratch = scratch_for(ReconstructForwardScratch, chunks, channels)
+    _reconstruct_forward(_pairs(color, velocity, depth), color, velocity, depth, neighbors, counts, jitter, *settings, out, weight, *scratch)
+    return out, weight
+
+
+def reconstruct_backward(
+    color: np.ndarray,
+    velocity: np.ndarray,
+    depth: np.ndarray,
+    neighbors: np.ndarray,
+    counts: np.ndarray,
+    jitter: np.ndarray,
+    out: np.ndarray,
+    weight: np.ndarray,
+    grad_out: np.ndarray,
+    *,
+    tile: int,
+    soft_z_extent: float,
+    min_radius: float,
+    own_odd: bool,
+    needs: tuple[bool, bool, bool] = (True, True, True),
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    """Gradients of `reconstruct_forward`'s image w.r.t. color, velocity, depth and neighbors,
+    given the forward's out and weight and the output's gradient grad_out. needs: whether color,
+    velocity and depth want theirs; None for the others, whose scatter to the taps' pixels (most of
+    the backward's time) is skipped. neighbors' comes with velocity's."""
+    total, grad_neighbors = reconstruct_backward_stacked(
+        color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out, tile=tile, soft_z_extent=soft_z_extent, min_radius=min_radius, own_odd=own_odd, needs=needs
+    )
+    channels = color.shape[1]
+    need_color, need_velocity, need_depth = (bool(need) for need in needs)
+    return (
+        total[:, :channels] if need_color else None,
+        total[:, channels : channels + 2] if need_velocity else None,
+        total[:, channels + 2 :] if need_depth else None,
+        grad_neighbors,
+    )
+
+
+def reconstruct_backward_stacked(
+    color: np.ndarray,
+    velocity: np.ndarray,
+    depth: np.ndarray,
+    neighbors: np.ndarray,
+    counts: np.ndarray,
+    jitter: np.ndarray,
+    out: np.ndarray,
+    weight: np.ndarray,
+    grad_out: np.ndarray,
+    *,
+    tile: int,
+    soft_z_extent: float,
+    min_radius: float,
+    own_odd: bool,
+    needs: tuple[bool, bool, bool] = (True, True, True),
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """`reconstruct_backward` with the gradients w.r.t. color, velocity and depth in one array
+    (B, C + 3, H, W), stacked along the channels as the kernel writes them (the channels of one not
+    asked for are left unwritten), and neighbors' gradient (None unless velocity's is asked for).
+    The PyTorch operator returns this array whole and slices it, as an operator's outputs may not
+    be views of one another."""
+    color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out = read_only(color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out)
+    batch, channels, height, width = color.shape
+    chunks = min(_threads(), batch * height)
+    grads = np.zeros((chunks, batch, height, width, channels + 3), dtype=color.dtype)
+    grad_neighbors = np.zeros((chunks, *neighbors.shape), dtype=color.dtype)
+    need_color, need_velocity, need_depth = (bool(need) for need in needs)
+    settings = (int(tile), float(soft_z_extent), float(min_radius), int(own_odd), row_order(batch * height), int(need_color), int(need_velocity), int(need_depth))
+    scratch = scratch_for(ReconstructBackwardScratch, chunks, channels)
+    arrays = (_pairs(color, velocity, depth), color, velocity, depth, neighbors, counts, jitter)
+    _reconstruct_backward(*arrays, *settings, out, weight, grad_out, grads, grad_neighbors, *scratch)
+    total = np.empty((batch, channels + 3, height, width), dtype=color.dtype)
+    _deinterleave_sum(grads, total)
+    return total, grad_neighbors.sum(axis=0) if need_velocity else None

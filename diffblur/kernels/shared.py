@@ -1,0 +1,380 @@
+"""What the fused CPU kernels (numba) share: the numba set-up, the pair layouts, the row blocks, the
+bilinear reads and their slopes, the scatter of a read's gradient, and the scratch arrays.
+
+One file per op holds its kernels (`reconstruct`, `gather`, `scatter`); they take and return NumPy
+arrays, so both backends share them (`torch_impl._fused*`, `jax_impl._fused*`).
+
+The forward and backward kernels run a block of pixels of one row as SIMD vectors (see "The forward
+runs a block" below): the per-pixel state lives in scratch arrays passed as separate arguments. A
+kernel's scratch is a named tuple (`ReconstructForwardScratch`, ...) whose fields are the kernel's
+trailing `*_s` parameters, in order, each typed by its kind (`Floats`, `Ints`, `ChannelFloats`);
+`scratch_for` allocates one and `check_scratch` (run when each kernel module loads) checks the
+fields against the kernel's parameters by name.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+import os
+import threading
+from typing import Any, NewType, TypeVar, get_type_hints
+
+import numpy as np
+
+__all__ = [
+    "THREADING_LAYER",
+    "ChannelFloats",
+    "Floats",
+    "Ints",
+    "available",
+    "check_scratch",
+    "read_only",
+    "row_order",
+    "scratch_for",
+    "use_fused",
+]
+
+try:  # numba is a dependency; the guard keeps the pure ops usable where it cannot load.
+    import numba
+except ImportError:  # pragma: no cover - exercised only without numba
+    numba = None
+
+#: The numba threading layer the kernels ask for, unless the user set NUMBA_THREADING_LAYER:
+#: "forksafe" is TBB where it is installed, else numba's own "workqueue". The default on Linux is
+#: GNU OpenMP, which is not fork-safe: a DataLoader worker forked after the parent ran a kernel died
+#: ("Terminating: fork() called from a process already using GNU OpenMP"). It takes effect when this
+#: module is imported before the process's first parallel numba launch: every op imports it before
+#: its first kernel, so only numba code of the user's own, run earlier, can have chosen the layer.
+THREADING_LAYER = "forksafe"
+
+
+def _pin_threading_layer() -> None:
+    if numba is None or "NUMBA_THREADING_LAYER" in os.environ:
+        return
+    # Both: numba re-reads its config from NUMBA_* variables whenever they change, which would put
+    # the default back if only the config attribute were set.
+    os.environ["NUMBA_THREADING_LAYER"] = THREADING_LAYER
+    numba.config.THREADING_LAYER = THREADING_LAYER
+
+
+_pin_threading_layer()
+
+#: Held while a kernel runs. The workqueue layer is not thread-safe: two threads launching kernels
+#: at once (JAX runs callbacks on its own threads; a user's thread pool) abort the process. Each
+#: kernel already uses every core, so running them one at a time costs nothing measurable.
+_KERNEL_LOCK = threading.RLock()
+
+
+def _fresh_lock_in_child() -> None:
+    # A fork while another thread held the lock would leave it held for ever in the child.
+    global _KERNEL_LOCK
+    _KERNEL_LOCK = threading.RLock()
+
+
+os.register_at_fork(after_in_child=_fresh_lock_in_child)
+
+#: Row interleave of the parallel loops: each thread's static share of the rows is spread over the
+#: whole image, so a scene whose motion sits in one band still keeps both cores busy.
+_ROW_INTERLEAVE = 16
+
+
+def available() -> bool:
+    """Whether the fused kernels can run (numba imports)."""
+    return numba is not None
+
+
+def use_fused(op: str, fused: bool | None, reason: str | None) -> bool:
+    """Whether `op` runs on its fused kernel, given the user's `fused` and why the kernel cannot run
+    these inputs (`reason`, None when it can): None takes the kernel where it can, True insists
+    (ValueError naming the reason), False never takes it."""
+    if fused is False:
+        return False
+    if reason is not None and fused:
+        raise ValueError(f"{op}(fused=True) cannot run: {reason}")
+    return reason is None
+
+
+def read_only(*arrays: np.ndarray) -> list[np.ndarray]:
+    """Read-only views of a kernel's input arrays. numba compiles a kernel once per argument type,
+    and a read-only array is a type of its own: JAX's callbacks hand over read-only arrays and
+    PyTorch writable ones, so without these views a process that runs both compiled every kernel
+    twice (~100 s more on a cold cache, measured)."""
+    views = []
+    for array in arrays:
+        view = array.view()
+        view.flags.writeable = False
+        views.append(view)
+    return views
+
+
+def row_order(rows: int) -> np.ndarray:
+    """Rows 0, 16, 32, ..., 1, 17, ...: the order the parallel loops visit the B * H rows in."""
+    return np.argsort(np.arange(rows) % _ROW_INTERLEAVE, kind="stable").astype(np.int64)
+
+
+class _Locked:
+    """A parallel kernel called from Python under `_KERNEL_LOCK`; its other attributes are the
+    numba dispatcher's (`signatures`, ...)."""
+
+    def __init__(self, dispatcher):
+        self._dispatcher = dispatcher
+
+    def __call__(self, *args):
+        with _KERNEL_LOCK:
+            return self._dispatcher(*args)
+
+    def __getattr__(self, name):
+        return getattr(self._dispatcher, name)
+
+
+def _jit(function):
+    if numba is None:  # pragma: no cover
+        return function
+    return _Locked(numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy", fastmath=True)(function))
+
+
+def _inline(function):
+    if numba is None:  # pragma: no cover
+        return function
+    return numba.njit(inline="always", cache=True, error_model="numpy", fastmath=True)(function)
+
+
+@_inline
+def _length(a, b):
+    squared = a * a + b * b
+    return math.sqrt(squared) if squared > 0.0 else 0.0
+
+
+@_inline
+def _soft_depth_compare(z_a, z_b, extent, inverse_extent):
+    behind = z_b - z_a
+    if behind < 0.0:
+        return 1.0
+    if behind > extent:
+        return 0.0
+    return 1.0 - behind * inverse_extent
+
+
+@_jit
+def _deinterleave_sum(grads, out):
+    """Sum the (chunks, B, H, W, K) per-chunk gradient buffers into out (B, K, H, W)."""
+    chunks, batch, height, width, channels = grads.shape
+    for row in numba.prange(batch * height):
+        b = row // height
+        y = row % height
+        for x in range(width):
+            for c in range(channels):
+                total = 0.0
+                for chunk in range(chunks):
+                    total += grads[chunk, b, y, x, c]
+                out[b, c, y, x] = total
+
+
+# The forward runs a block of pixels of one row as vectors: for each tap index k, one loop over the
+# block's pixels with no branches, whose bilinear reads LLVM turns into SIMD gathers (2x faster than a
+# pixel-at-a-time loop here). Three things make that loop vectorize: the per-pixel state lives in
+# scratch arrays that are separate arguments of the parallel loop (numba marks non-aliasing arguments
+# `noalias`; a view or a bool flag copied inside the loop counts as an alias and turns that off), the
+# image is read as (left, right) pairs (`_pairs`: one 64-bit read per bilinear row for float32), and
+# a block is a run of tiles with one tap count (`_block_end`), so every lane takes the same taps and
+# adaptive sampling saves per tile, not per block.
+_BLOCK = 128
+
+
+if numba is not None:
+    from llvmlite import ir as _ir
+    from numba.core import types as _types
+    from numba.extending import intrinsic as _intrinsic
+    from numba.extending import overload as _overload
+
+    @_intrinsic
+    def _split_float32_pair(typingctx, bits):
+        """A uint64 that holds two float32 (little-endian: the first in the low word) -> both."""
+        if bits != _types.uint64:
+            return None
+
+        def codegen(context, builder, signature, args):
+            low = builder.trunc(args[0], _ir.IntType(32))
+            high = builder.trunc(builder.lshr(args[0], _ir.Constant(_ir.IntType(64), 32)), _ir.IntType(32))
+            halves = (builder.bitcast(low, _ir.FloatType()), builder.bitcast(high, _ir.FloatType()))
+            return context.make_tuple(builder, signature.return_type, halves)
+
+        return _types.UniTuple(_types.float32, 2)(bits), codegen
+
+
+def _pair(pairs, index):  # pragma: no cover - numba compiles the overload below
+    raise NotImplementedError
+
+
+if numba is not None:
+
+    @_overload(_pair, inline="always", fastmath=True)
+    def _pair_overload(pairs, index):
+        """Pair `index` of `_pairs`' flat array as float64 (left, right): float32 pairs are one
+        uint64 read, float64 pairs two reads."""
+        if pairs.dtype == _types.uint64:
+
+            def read_uint64(pairs, index):
+                left, right = _split_float32_pair(pairs[index])
+                return np.float64(left), np.float64(right)
+
+            return read_uint64
+
+        def read_float64(pairs, index):
+            return pairs[2 * index], pairs[2 * index + 1]
+
+        return read_float64
+
+
+@_jit
+def _fill_pairs(color, velocity, depth, pairs):
+    """pairs (B, H, W, C + 3, 2): each pixel's C, V, Z beside those of its right neighbour (the last
+    column beside itself), so a bilinear row is one read."""
+    batch, channels, height, width = color.shape
+    for row in numba.prange(batch * height):
+        b = row // height
+        y = row % height
+        for x in range(width):
+            right = min(x + 1, width - 1)
+            for c in range(channels):
+                pairs[b, y, x, c, 0] = color[b, c, y, x]
+                pairs[b, y, x, c, 1] = color[b, c, y, right]
+            for c in range(2):
+                pairs[b, y, x, channels + c, 0] = velocity[b, c, y, x]
+                pairs[b, y, x, channels + c, 1] = velocity[b, c, y, right]
+            pairs[b, y, x, channels + 2, 0] = depth[b, 0, y, x]
+            pairs[b, y, x, channels + 2, 1] = depth[b, 0, y, right]
+
+
+def _pairs(color: np.ndarray, velocity: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """`_fill_pairs`' buffer, flat: uint64 (one per pair) for float32, float64 (two per pair) else."""
+    batch, channels, height, width = color.shape
+    pairs = np.empty((batch, height, width, channels + 3, 2), dtype=color.dtype)
+    _fill_pairs(color, velocity, depth, pairs)
+    return _flat_pairs(pairs)
+
+
+@_jit
+def _fill_color_pairs(color, pairs):
+    """`_fill_pairs` for the colour alone: pairs (B, H, W, C, 2)."""
+    batch, channels, height, width = color.shape
+    for row in numba.prange(batch * height):
+        b = row // height
+        y = row % height
+        for x in range(width):
+            right = min(x + 1, width - 1)
+            for c in range(channels):
+                pairs[b, y, x, c, 0] = color[b, c, y, x]
+                pairs[b, y, x, c, 1] = color[b, c, y, right]
+
+
+def _flat_pairs(pairs: np.ndarray) -> np.ndarray:
+    """A pairs buffer, flat: uint64 (one per pair) for float32, float64 (two per pair) else."""
+    return pairs.reshape(-1).view(np.uint64) if pairs.dtype == np.float32 else pairs.reshape(-1)
+
+
+def _color_pairs(color: np.ndarray) -> np.ndarray:
+    batch, channels, height, width = color.shape
+    pairs = np.empty((batch, height, width, channels, 2), dtype=color.dtype)
+    _fill_color_pairs(color, pairs)
+    return _flat_pairs(pairs)
+
+
+@_inline
+def _block_end(counts, b, tile_y, start, width, tile):
+    """Where the block that starts at column `start` ends: the run of tiles with the count of
+    `start`'s tile, at most _BLOCK pixels."""
+    count = counts[b, tile_y, start // tile]
+    end = min((start // tile + 1) * tile, width)
+    while end < width and end - start < _BLOCK and counts[b, tile_y, end // tile] == count:
+        end = min(end + tile, width)
+    return min(end, start + _BLOCK)
+
+
+@_inline
+def _tap_corner(px, py, last_x, last_y):
+    """A tap at (px, py) clamped to the image as `_sampling.sample` does: its top-left pixel (a
+    clamped position is >= 0, so int() floors it), the fractions, and whether the clamp left each
+    coordinate alone (1.0) or cut its gradient (0.0)."""
+    cx = min(max(px, 0.0), last_x)
+    cy = min(max(py, 0.0), last_y)
+    column = np.int64(cx)
+    row0 = np.int64(cy)
+    inside_x = 1.0 if (px >= 0.0) & (px <= last_x) else 0.0
+    inside_y = 1.0 if (py >= 0.0) & (py <= last_y) else 0.0
+    return column, row0, cx - column, cy - row0, inside_x, inside_y
+
+
+@_inline
+def _pair_read(pairs, index, below, fx, fy):
+    """Bilinear read of pair `index` (top row) and `index + below` (bottom row), in float64, as
+    `_sampling.sample` computes it (a + f (b - a), the columns first)."""
+    top_left, top_right = _pair(pairs, index)
+    bottom_left, bottom_right = _pair(pairs, index + below)
+    top = top_left + fx * (top_right - top_left)
+    bottom = bottom_left + fx * (bottom_right - bottom_left)
+    return top + fy * (bottom - top)
+
+
+@_inline
+def _pair_read_slopes(pairs, index, below, fx, fy):
+    """d read / d fx, d read / d fy and the read of `_pair_read`."""
+    top_left, top_right = _pair(pairs, index)
+    bottom_left, bottom_right = _pair(pairs, index + below)
+    top = top_left + fx * (top_right - top_left)
+    bottom = bottom_left + fx * (bottom_right - bottom_left)
+    return (1.0 - fy) * (top_right - top_left) + fy * (bottom_right - bottom_left), bottom - top, top + fy * (bottom - top)
+
+
+@_inline
+def _scatter_chunk(grads, chunk, b, channel, row0, row1, column0, column1, fx, fy, grad):
+    """Add `grad` to chunk `chunk` of grads (chunks, B, H, W, K) at the 4 corners of a bilinear read,
+    each with its weight; indexed rather than sliced (a slice is an alias)."""
+    grads[chunk, b, row0, column0, channel] += grad * (1.0 - fx) * (1.0 - fy)
+    grads[chunk, b, row0, column1, channel] += grad * fx * (1.0 - fy)
+    grads[chunk, b, row1, column0, channel] += grad * (1.0 - fx) * fy
+    grads[chunk, b, row1, column1, channel] += grad * fx * fy
+
+
+# Each scratch row is followed by 1 KiB that no thread touches. Side by side, one thread's row next to
+# another's, the backward on 2 threads took 365 ms at 720p instead of 250 (a gap of 256 B: 355 ms);
+# likely the prefetcher running ahead of one thread's row into the other's.
+_SCRATCH_GAP = 128
+
+
+
+#: The kinds of a kernel's *_s scratch arrays, as the annotations of its scratch named tuple: one
+#: block row per chunk of rows, float64 (chunks, row) or int64 (chunks, row), or float64 per colour
+#: channel (chunks, C, row), with row = _BLOCK + _SCRATCH_GAP.
+Floats = NewType("Floats", np.ndarray)
+Ints = NewType("Ints", np.ndarray)
+ChannelFloats = NewType("ChannelFloats", np.ndarray)
+
+Scratch = TypeVar("Scratch")
+
+
+def scratch_for(layout: type[Scratch], chunks: int, channels: int) -> Scratch:
+    """A fresh `layout` (a kernel's scratch named tuple), each field an uninitialised array of its
+    annotated kind (`Floats`, `Ints`, `ChannelFloats`). The kernel takes it as `*scratch`."""
+    row = _BLOCK + _SCRATCH_GAP
+    shapes = {Floats: ((chunks, row), np.float64), Ints: ((chunks, row), np.int64), ChannelFloats: ((chunks, channels, row), np.float64)}
+    kinds = get_type_hints(layout)
+    return layout(*(np.empty(*shapes[kinds[name]]) for name in layout._fields))
+
+
+def check_scratch(kernel: Any, layout: type) -> None:
+    """Raise unless `kernel`'s last parameters are `layout`'s fields, each with the suffix _s, in
+    order: the named tuple is passed by position, so its order is the kernel's."""
+    parameters = list(inspect.signature(getattr(kernel, "py_func", kernel)).parameters)
+    expected = [f"{name}_s" for name in layout._fields]
+    if parameters[-len(expected) :] != expected:
+        raise TypeError(f"{layout.__name__} does not match {parameters[-len(expected):]} of its kernel")
+    kinds = get_type_hints(layout)
+    unknown = sorted({kind for kind in kinds.values()} - {Floats, Ints, ChannelFloats}, key=str)
+    if unknown:
+        raise TypeError(f"{layout.__name__}: unknown scratch kinds {unknown}")
+
+
+def _threads() -> int:
+    return max(1, numba.get_num_threads())
