@@ -9,10 +9,7 @@ batch size of each device's shard of the blurred output.
 from __future__ import annotations
 
 import json
-import os
 import time
-
-os.environ.setdefault("EQX_ON_ERROR", "nan")  # docs/scaling.md: the data checks would gather the batch
 
 import jax  # noqa: E402
 
