@@ -1,9 +1,10 @@
 """Argument checks shared by both backends.
 
-The checks take facts (a shape, a dtype and whether it is floating, a Python value), never a
-tensor, so this module stays free of torch and jax. Each backend's ``_checks`` module reads the
-facts off its own arrays and calls these. Every message names the argument, the value it got and
-what is allowed, e.g. ``samples must be an odd integer >= 1, got 4``.
+The `require_*` checks take facts (a shape, a dtype and whether it is floating, a Python value).
+The array checks at the end (`floating_array`, `image_array`, ...) take arrays with the `Backend`
+that reads those facts off them (`diffblur.ops.backend`), so this module stays free of torch and
+jax. Every message names the argument, the value it got and what is allowed, e.g.
+``samples must be an odd integer >= 1, got 4``.
 """
 
 from __future__ import annotations
@@ -193,6 +194,64 @@ def depth_band(soft_z_extent: object, relative_z_extent: object) -> tuple[bool, 
     return True, relative_z_extent
 
 
+def floating_array(be, name: str, x: object):
+    """x as the backend's array (`be.array` refuses other types), with a floating dtype."""
+    x = be.array(name, x)
+    require_floating(name, x.dtype, be.is_floating(x))
+    return x
+
+
+def image_array(be, name: str, x: object, *, channels: int | None = None):
+    """A floating (B, C, H, W) array, with `channels` channels if given."""
+    x = floating_array(be, name, x)
+    require_image(name, x.shape, channels=channels)
+    return x
+
+
+def same_dtype_and_device(be, name: str, x, reference_name: str, reference) -> None:
+    """x has the dtype of the reference array, and its device (where the framework has devices)."""
+    require_same_dtype(name, x.dtype, reference_name, reference.dtype)
+    be.require_same_device(name, x, reference_name, reference)
+
+
+def same_shape(be, name: str, x, reference_name: str, reference) -> None:
+    """x has the shape, dtype and device of the reference array."""
+    require_same_shape(name, x.shape, reference_name, reference.shape)
+    same_dtype_and_device(be, name, x, reference_name, reference)
+
+
+def positive_scalar(be, name: str, value: object, like):
+    """A Python number > 0, or a 0-d array / an array of `like`'s shape with values > 0. An array
+    keeps its gradient; one of any other shape is refused rather than broadcast."""
+    if be.is_array(value):
+        value = be.array(name, value)
+        if value.ndim != 0:
+            same_shape(be, name, value, "the compared arrays", like)
+        else:
+            same_dtype_and_device(be, name, floating_array(be, name, value), "the compared arrays", like)
+        return be.check_positive(name, value)
+    return require_positive_number(name, value)
+
+
+def per_batch_scalar(be, name: str, value: object, like):
+    """A Python number, a 0-d array, or a (B,) array reshaped to broadcast over (B, C, H, W)."""
+    if be.is_array(value):
+        value = floating_array(be, name, value)
+        same_dtype_and_device(be, name, value, "the input", like)
+        if value.ndim == 0:
+            return value
+        if value.ndim == 1 and value.shape[0] == like.shape[0]:
+            return value.reshape(-1, 1, 1, 1)
+        raise ValueError(
+            f"{name} must be a number, a 0-d {be.array_word} or a (B,) {be.array_word} with B={like.shape[0]}, "
+            f"got shape {tuple(value.shape)}"
+        )
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        raise TypeError(f"{name} must be a real number or a {be.array_type_name}, got {value!r}")
+    return float(value)
+
+
+__all__ += ["floating_array", "image_array", "per_batch_scalar", "positive_scalar", "same_dtype_and_device", "same_shape"]
 def lists_options(op, *, explain=None):
     """`op` with one change: an unknown keyword argument raises a TypeError that names it and lists
     the op's keyword-only options (Python's own message names only the unknown one). The backends

@@ -1,0 +1,68 @@
+"""How an op's options are taken and shown: `OpOptions`, the base of each op's options dataclass, and
+`public`, which gives a backend's function the op's docstring and its full signature."""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import textwrap
+from collections.abc import Callable, Mapping
+from typing import Any, TypeVar
+
+__all__ = ["OpOptions", "option_names", "public"]
+
+Options = TypeVar("Options", bound="OpOptions")
+
+
+@dataclasses.dataclass(frozen=True)
+class OpOptions:
+    """An op's keyword options, checked in `__post_init__`; derived values are fields with
+    init=False, set there with `_resolve`."""
+
+    @classmethod
+    def take(cls: type[Options], op: str, given: Mapping[str, Any]) -> Options:
+        """The options from a call's keyword arguments; an unknown name raises a TypeError that names
+        it and lists the valid ones (Python's own message names only the unknown one)."""
+        names = option_names(cls)
+        for name in given:
+            if name not in names:
+                raise TypeError(f"{op}() got an unknown option {name!r}; valid options: {', '.join(names)}")
+        return cls(**given)
+
+    def _resolve(self, name: str, value: Any) -> None:
+        object.__setattr__(self, name, value)
+
+
+def option_names(options: type[OpOptions]) -> list[str]:
+    """The keyword options a call takes, in the dataclass's order."""
+    return [f.name for f in dataclasses.fields(options) if f.init]
+
+
+def _option_parameters(options: type[OpOptions]) -> list[inspect.Parameter]:
+    hints = {f.name: f.type for f in dataclasses.fields(options)}
+    parameters = []
+    for f in dataclasses.fields(options):
+        if f.init:
+            default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
+            parameters.append(inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=default, annotation=hints[f.name]))
+    return parameters
+
+
+def public(doc: str, options: type[OpOptions] | None = None, *, example: str = "") -> Callable[[Callable], Callable]:
+    """Decorate a backend's public function: its docstring becomes `doc` followed by the backend's
+    `example` (a doctest), and, with `options`, its signature shows the function's own array
+    parameters followed by every option, keyword-only with its default (the function itself takes
+    them as **options and hands them to `options.take`)."""
+
+    def decorate(function: Callable) -> Callable:
+        text = inspect.cleandoc(doc)
+        if example:
+            text += "\n\n" + textwrap.dedent(example).strip("\n")
+        function.__doc__ = text
+        if options is not None:
+            signature = inspect.signature(function)
+            own = [p for p in signature.parameters.values() if p.kind is not inspect.Parameter.VAR_KEYWORD]
+            function.__signature__ = signature.replace(parameters=[*own, *_option_parameters(options)])  # type: ignore[attr-defined]
+        return function
+
+    return decorate
