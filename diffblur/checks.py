@@ -252,36 +252,3 @@ def per_batch_scalar(be, name: str, value: object, like):
 
 
 __all__ += ["floating_array", "image_array", "per_batch_scalar", "positive_scalar", "same_dtype_and_device", "same_shape"]
-def lists_options(op, *, explain=None):
-    """`op` with one change: an unknown keyword argument raises a TypeError that names it and lists
-    the op's keyword-only options (Python's own message names only the unknown one). The backends
-    export their ops through this; the wrapped op keeps its name, docstring and signature.
-
-    explain: optional `explain(error, kwargs)` -> an exception to raise instead of a TypeError the op
-    raised (e.g. a framework's message that does not say which option avoids it), or None."""
-    import functools
-    import inspect
-
-    parameters = inspect.signature(op).parameters
-    known = frozenset(parameters)
-    options = ", ".join(p.name for p in parameters.values() if p.kind is inspect.Parameter.KEYWORD_ONLY)
-
-    @functools.wraps(op)
-    def checked(*args, **kwargs):
-        for name in kwargs:
-            if name not in known:
-                raise TypeError(f"{op.__name__}() got an unknown option {name!r}; valid options: {options}")
-        if explain is None:
-            return op(*args, **kwargs)
-        try:
-            return op(*args, **kwargs)
-        except TypeError as error:
-            better = explain(error, kwargs)
-            if better is None:
-                raise
-            raise better from error
-
-    return checked
-
-
-__all__ += ["lists_options"]

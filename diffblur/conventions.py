@@ -75,10 +75,18 @@ JITTER_MODES = ("noise", "none")
 #: (seed 000), or alternately that and the pixel's own velocity (seed 000 sec. 4.3, future work).
 TAP_DIRECTIONS = ("neighbor", "neighbor_and_own")
 
-#: How filters read the image between pixel centres: "bilinear" (differentiable in the positions,
-#: the default) or "nearest" (rounded to the nearest pixel, as the documents do; no gradient
-#: through positions).
-SAMPLING_MODES = ("bilinear", "nearest")
+#: How the gather and the reconstruction filter read the image at a tap: "bilinear" (differentiable
+#: in the positions, the default), "nearest" (rounded to the nearest pixel, as the documents do; no
+#: gradient through positions) or "pyramid" (bilinear, from a pre-filtered level where the taps are
+#: farther apart than a pixel: seed 001's texture-space blur, `diffblur.ops.pyramid`).
+SAMPLING_MODES = ("bilinear", "nearest", "pyramid")
+#: How the warps (`warp_blend`, `accumulate_warps`) read a warped image: bilinear or nearest.
+WARP_SAMPLING_MODES = ("bilinear", "nearest")
+
+#: Which implementation an op with a fused CPU kernel runs: "auto" (the kernel where it applies,
+#: the tensor ops elsewhere), "fused" (the kernel, or a ValueError naming what it does not cover),
+#: "tensor" (always the tensor ops).
+IMPLS = ("auto", "fused", "tensor")
 
 #: The cylinder classifier's smoothstep runs from CYLINDER_INNER to CYLINDER_OUTER times the speed
 #: (seed 000, Figure 4).
@@ -107,7 +115,9 @@ __all__ = [
     "IGN_A",
     "IGN_B",
     "IGN_C",
+    "IMPLS",
     "SAMPLING_MODES",
+    "WARP_SAMPLING_MODES",
     "STILL_SPEED",
     "VECTOR_CHANNELS",
     "X_CHANNEL",

@@ -10,6 +10,8 @@ and the shutter's parameters as on the pure path.
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from functools import lru_cache, partial
 
 import jax
@@ -19,9 +21,9 @@ from jax.custom_derivatives import SymbolicZero
 
 from diffblur.kernels import gather as gather_kernel
 from diffblur.kernels import reconstruct as reconstruct_kernel
-from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED
-from jax_impl._primitives import _safe_length, neighbor_max, tile_max
-from jax_impl._sampling import widen_window
+from diffblur.ops.adaptive import ADAPTIVE_TILE, STILL_SPEED
+from diffblur.ops import primitives
+from jax_impl._backend import JAX
 
 
 def _backend_reason() -> str | None:
@@ -39,14 +41,34 @@ def _backend_reason() -> str | None:
     return None
 
 
+def forward_mode_hint(op: Callable) -> Callable:
+    """`op` (a public op with a fused kernel), with JAX's error for forward mode (jvp, jacfwd,
+    linearize) through the kernel's custom_vjp made to say what to do: the tensor ops have both
+    modes."""
+
+    @functools.wraps(op)
+    def hinted(*args, **options):
+        try:
+            return op(*args, **options)
+        except TypeError as error:
+            if "forward-mode" not in str(error) or options.get("impl") == "tensor":
+                raise
+            raise TypeError(
+                f"{op.__name__} ran on its fused CPU kernel, which has a reverse-mode gradient only (a custom_vjp): for jax.jvp, "
+                f"jax.jacfwd or jax.linearize pass {op.__name__}(..., impl='tensor') (or MotionBlur(..., impl='tensor')). JAX: {error}"
+            ) from error
+
+    return hinted
+
+
 def unfused_reason(o, color) -> str | None:
     """Why the fused reconstruct cannot run these inputs and options, or None when it can."""
     return reconstruct_kernel.reconstruct_unfused_reason(o, str(jnp.dtype(color.dtype))) or _backend_reason()
 
 
-def gather_unfused_reason(color, sampling: str, pyramid: bool) -> str | None:
+def gather_unfused_reason(color, sampling: str) -> str | None:
     """Why the fused gather_blur cannot run these inputs and options, or None when it can."""
-    return gather_kernel.gather_unfused_reason(sampling, pyramid, str(jnp.dtype(color.dtype))) or _backend_reason()
+    return gather_kernel.gather_unfused_reason(sampling, str(jnp.dtype(color.dtype))) or _backend_reason()
 
 
 @lru_cache(maxsize=256)
@@ -113,10 +135,10 @@ _fused_core.defvjp(_fused_core_fwd, _fused_core_bwd, symbolic_zeros=True)
 
 def fused_reconstruct(color, velocity, depth, jitter, o):
     """reconstruct (options `o`, adaptive or not) on the fused kernel; see `unfused_reason`."""
-    neighbors = neighbor_max(tile_max(velocity, o.tile))
-    speed = _safe_length(jax.lax.stop_gradient(neighbors))[:, 0]
+    neighbors = primitives.neighbor_max(JAX, primitives.tile_max(JAX, velocity, o.tile))
+    speed = primitives.safe_length(JAX, jax.lax.stop_gradient(neighbors))[:, 0]
     counts = reconstruct_kernel.tile_counts(speed, o, jnp)
-    settings = (("tile", o.tile), ("soft_z_extent", o.soft_z_extent), ("min_radius", o.min_radius), ("own_odd", o.directions == "neighbor_and_own"))
+    settings = (("tile", o.tile), ("soft_z_extent", o.band), ("min_radius", o.min_radius), ("own_odd", o.directions == "neighbor_and_own"))
     jitter = jnp.broadcast_to(jitter, (jitter.shape[0], 1, *color.shape[2:]))
     return _fused_core(settings, color, velocity, depth, neighbors, counts.astype(jnp.int32), jitter)
 
@@ -161,5 +183,5 @@ def fused_gather(color, velocity, window, samples: int, classes: tuple[int, ...]
     """gather_blur (full rate, or the adaptive `classes`) on the fused kernel; see `gather_unfused_reason`.
     The kernel sizes the adaptive classes itself, from the velocity."""
     settings = (("samples", samples), ("classes", classes), ("still", STILL_SPEED), ("tile", ADAPTIVE_TILE))
-    table = gather_kernel.gather_mass_table(widen_window(window, wide), samples, classes or (samples,), jnp, wide).astype(color.dtype)
+    table = gather_kernel.gather_mass_table(JAX.widen_window(window, wide), samples, classes or (samples,), jnp, wide).astype(color.dtype)
     return _fused_gather_core(settings, color, velocity, table)

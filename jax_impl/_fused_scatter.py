@@ -3,7 +3,7 @@
 
 The kernel runs on the host, inside or outside `jax.jit`; reverse mode (grad, vjp) uses its
 backward. Forward mode (jvp, jacfwd, linearize) is not defined for a custom_vjp: such callers pass
-fused=False. The path's power-basis terms (or the arc's centre and angle) and the shutter's masses
+impl="tensor". The path's power-basis terms (or the arc's centre and angle) and the shutter's masses
 stay jax.numpy ops, so JAX carries the kernel's gradients w.r.t. them back to the offsets and the
 shutter's parameters as on the pure path.
 """
@@ -18,7 +18,8 @@ import numpy as np
 
 from diffblur.kernels import scatter as scatter_kernel
 from jax_impl._fused import _backend_reason, _bound
-from jax_impl._primitives import _floor_extent
+from diffblur.ops.primitives import floor_extent
+from jax_impl._backend import JAX
 
 
 def unfused_reason(color) -> str | None:
@@ -69,6 +70,6 @@ def _path(kind: str, terms: tuple):
 def fused_splat(color, depth, kind: str, terms: tuple, masses, extent, moving, paper: bool):
     """The sums (B, C + 1, H, W) of omega * [color, 1] over every moving pixel's points (`_scatter`'s
     accumulation, cropped to the image), on the fused kernel; see `unfused_reason`."""
-    extent = jnp.asarray(_floor_extent(extent), dtype=depth.dtype)
+    extent = jnp.asarray(floor_extent(JAX, extent), dtype=depth.dtype)
     flags = (("arc", kind == "arc"), ("paper", paper))
     return _fused_splat_core(flags, color, depth, _path(kind, terms), masses.astype(color.dtype), extent, moving)

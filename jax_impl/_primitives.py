@@ -3,8 +3,6 @@
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
@@ -74,12 +72,3 @@ def neighbor_max(tile_velocity: Float[Array, "b 2 th tw"]) -> Float[Array, "b 2 
 def interleaved_gradient_noise(height: int, width: int, *, dtype: jnp.dtype | None = None, device: jax.Device | None = None) -> Float[Array, "h w"]:
     return p.interleaved_gradient_noise_op(JAX, height, width, dtype=dtype, device=device)
 
-
-# The math without the checks, for the backend's other modules until they run on `diffblur.ops`.
-_cone = functools.partial(p.cone, JAX)
-_cylinder = functools.partial(p.cylinder, JAX)
-_safe_length = functools.partial(p.safe_length, JAX)
-_soft_depth_compare = functools.partial(p.soft_depth_compare, JAX)
-_squared_length = functools.partial(p.squared_length, JAX)
-_floor_speed = functools.partial(p.floor_speed, JAX)
-_floor_extent = functools.partial(p.floor_extent, JAX)

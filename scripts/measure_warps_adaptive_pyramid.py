@@ -132,7 +132,7 @@ def adaptive_speed(size: int = 512, *, samples: int = 15, max_radius: float = 16
 
     import jax_impl
     import torch_impl
-    from diffblur._adaptive import ADAPTIVE_TILE, adaptive_classes, still_speed, tile_sample_counts
+    from diffblur.ops.adaptive import ADAPTIVE_TILE, adaptive_classes, still_speed, tile_sample_counts
 
     color, velocity, depth = still_scene(size)
     classes = adaptive_classes(True, samples)

@@ -8,7 +8,7 @@ import math
 import torch
 
 from diffblur import reference
-from diffblur.taps import reconstruct_options, reconstruct_tap_time, shutter_factor
+from diffblur.ops.taps import reconstruct_options, reconstruct_tap_time, shutter_factor
 from torch_impl._primitives import _cone, _cylinder, _safe_length, _soft_depth_compare, neighbor_max, tile_max
 from torch_impl._sampling import pixel_grid, sample
 

@@ -185,7 +185,7 @@ def test_batch_items_do_not_mix():
 def test_kernel_tile_classes_are_the_shared_rule():
     """The kernel sizes gather's adaptive classes itself; they must be tile_sample_counts' classes."""
     from diffblur.kernels import gather as gather_kernel
-    from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED, adaptive_classes, tile_sample_counts
+    from diffblur.ops.adaptive import ADAPTIVE_TILE, STILL_SPEED, adaptive_classes, tile_sample_counts
 
     rng = np.random.default_rng(5)
     scale = np.repeat(np.repeat(rng.uniform(0, 8, size=(3, 1, 5, 3)), 16, axis=2), 16, axis=3)[:, :, :70, :45]

@@ -20,19 +20,6 @@ from torch_impl._primitives import (
     velocity_from_motion,
 )
 
-from diffblur.checks import lists_options as _lists_options
-
-# An unknown keyword names the op's valid options (the layer's options are checked by MotionBlur).
-gather_blur = _lists_options(gather_blur)
-reconstruct = _lists_options(reconstruct)
-bezier_scatter = _lists_options(bezier_scatter)
-warp_blend = _lists_options(warp_blend)
-accumulate_warps = _lists_options(accumulate_warps)
-velocity_from_motion = _lists_options(velocity_from_motion)
-velocity_from_motion_ids = _lists_options(velocity_from_motion_ids)
-safe_length = _lists_options(safe_length)
-interleaved_gradient_noise = _lists_options(interleaved_gradient_noise)
-
 __all__ = [
     "MotionBlur",
     "accumulate_warps",

@@ -9,6 +9,7 @@ where a failed device-side assert would leave the CUDA context unusable.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -18,7 +19,8 @@ import torch.nn.functional as F
 from torch import Tensor
 from torch.utils.checkpoint import checkpoint
 
-from diffblur import checks
+from diffblur import checks, reference
+from diffblur.ops.primitives import interleaved_gradient_noise
 
 
 def _assert_in_graph(ok: Tensor, message: str) -> bool:
@@ -38,11 +40,17 @@ def _constant(function: Callable, *args: Any) -> Any:
     return function(*args)
 
 
+@functools.lru_cache(maxsize=16)
+def _noise_jitter(height: int, width: int, dtype: torch.dtype, device: torch.device) -> Tensor:
+    return torch.tensor(reference.noise_jitter(height, width), device=device).to(dtype).reshape(1, 1, height, width)
+
+
 class TorchBackend:
     name = "torch"
     xp = torch
     half = (torch.float16, torch.bfloat16)
     compiler = "torch.compile"
+    integer = torch.int64
     array_word = "tensor"
     array_type_name = "torch.Tensor"
 
@@ -63,22 +71,25 @@ class TorchBackend:
         return x.dtype.is_floating_point
 
     @staticmethod
+    def is_integer(x: Tensor) -> bool:
+        return not x.dtype.is_floating_point and not x.dtype.is_complex and x.dtype != torch.bool
+
+    @staticmethod
     def require_same_device(name: str, x: Tensor, reference_name: str, reference: Tensor) -> None:
         if x.device != reference.device:
             raise ValueError(f"{name} must be on the device of {reference_name} ({reference.device}), got {x.device}")
 
     @staticmethod
-    def require(ok_of: Callable[[], Tensor], message: str) -> None:
-        """Raise ValueError(message) eagerly, or assert under torch.compile, unless `ok_of()` is true."""
-        ok = ok_of()
+    def check_values(x: Tensor, ok: Tensor, message: str) -> Tensor:
+        """x, after checking that `ok` (a bool tensor of one element, computed from data) holds."""
         if not _assert_in_graph(ok, message) and not bool(ok):
             raise ValueError(message)
+        return x
 
     @classmethod
     def check_positive(cls, name: str, x: Tensor) -> Tensor:
         """x, after checking that every element is > 0 (not NaN)."""
-        cls.require(lambda: torch.all(x > 0), checks.nonpositive_message(name))
-        return x
+        return cls.check_values(x, torch.all(x > 0), checks.nonpositive_message(name))
 
     @staticmethod
     def check_finite(name: str, x: Tensor, *, carry: Tensor | None = None) -> Tensor:
@@ -154,23 +165,22 @@ class TorchBackend:
     @staticmethod
     def pad(x: Tensor, widths: tuple[tuple[int, int], ...], *, value: float = 0.0, mode: str = "constant") -> Tensor:
         """x padded by (before, after) per axis, NumPy's order; mode "constant" (value) or "edge"."""
-        flat = [side for before_after in reversed(widths) for side in before_after]
-        while flat and flat[-2:] == [0, 0]:  # F.pad takes the trailing axes only
+        flat = [side for before_after in reversed(widths) for side in before_after]  # F.pad's order
+        if mode == "edge":  # replicate pads the last two axes of a 4-d tensor, no others
+            return F.pad(x, flat[:4], mode="replicate")
+        while flat and flat[-2:] == [0, 0]:
             flat = flat[:-2]
-        if mode == "edge":
-            return F.pad(x, flat, mode="replicate")
-        return F.pad(x, flat, value=value)
+        return F.pad(x, flat, value=value) if flat else x
 
     @staticmethod
     def argmax(x: Tensor, axis: int) -> Tensor:
         return torch.argmax(x, dim=axis, keepdim=True)
 
     @staticmethod
-    def pick_along(x: Tensor, index: Tensor, axis: int) -> Tensor:
-        """x's values at `index` along `axis` (index has size 1 there and broadcasts elsewhere), the
-        axis removed."""
-        index = index.expand(*x.shape[:axis], 1, *x.shape[axis + 1 :])
-        return torch.gather(x, axis, index).squeeze(axis)
+    def take_along(x: Tensor, index: Tensor, axis: int) -> Tensor:
+        """x's values at integer `index` along `axis`, the other axes broadcast (NumPy's
+        take_along_axis)."""
+        return torch.take_along_dim(x, index, dim=axis)
 
     @staticmethod
     def read_pixels(flat: Tensor, index: Tensor) -> Tensor:
@@ -180,9 +190,125 @@ class TorchBackend:
         return gathered.reshape(batch, channels, *index.shape[1:])
 
     @staticmethod
+    def contiguous(x: Tensor) -> Tensor:
+        return x.contiguous()
+
+    @staticmethod
+    def row_indices(pixels: np.ndarray, total: int, like: Tensor) -> tuple[Tensor, Tensor]:
+        """A class's flat pixel indices as the rows to read and to write."""
+        index = torch.from_numpy(pixels).to(like.device)
+        return index, index
+
+    @staticmethod
+    def write_rows(rows: Tensor, index: Tensor, values: Tensor) -> Tensor:
+        return rows.index_copy(0, index, values)
+
+    @staticmethod
     def constant(function: Callable, *args: Any) -> Any:
         """function(*args) of Python values, which a compiler keeps as a constant."""
         return _constant(function, *args)
+
+    @staticmethod
+    @functools.cache
+    def outside_compiler(function: Callable, reason: str) -> Callable:
+        """The function, run eagerly under torch.compile (a graph break; outside it the same)."""
+        return torch.compiler.disable(function, reason=reason)
+
+    @staticmethod
+    def compiled(function: Callable, static_argnames: tuple[str, ...]) -> Callable:
+        """The function as it is: PyTorch runs eagerly (under torch.compile the whole op is compiled)."""
+        return function
+
+    @staticmethod
+    def needs_gradient(*arrays: Tensor) -> bool:
+        """Whether autograd will differentiate through arrays computed from these."""
+        return torch.is_grad_enabled() and any(a.requires_grad for a in arrays)
+
+    @staticmethod
+    def sum_taps(tap: Callable, taps: list[int], carry: tuple[Tensor, Tensor], arrays: tuple, *, recompute: bool) -> tuple[Tensor, Tensor]:
+        """carry + the sum of tap(k, *arrays) over the taps, a Python loop; with `recompute` each tap
+        is recomputed in the backward pass (activation checkpointing), which keeps only its inputs."""
+        weight, total = carry
+        for k in taps:
+            if recompute:
+                alpha, contribution = checkpoint(tap, k, *arrays, use_reentrant=False)
+            else:
+                alpha, contribution = tap(k, *arrays)
+            weight, total = weight + alpha, total + contribution
+        return weight, total
+
+    @staticmethod
+    def noise_jitter(height: int, width: int, like: Tensor) -> Tensor:
+        """reconstruct's "noise" jitter (1, 1, H, W) in like's dtype, on its device: kept per size,
+        dtype and device, so that a call creates nothing on the host; under torch.compile computed
+        in the graph."""
+        if torch.compiler.is_compiling():
+            noise = interleaved_gradient_noise(TORCH, height, width, torch.float64, like) - 0.5
+            return noise.to(like.dtype).reshape(1, 1, height, width)
+        return _noise_jitter(height, width, like.dtype, like.device)
+
+    @staticmethod
+    def band(number: float, like: Tensor) -> float:
+        """A depth band given as a number, as the ops compute with it: a Python float."""
+        return number
+
+    @staticmethod
+    def per_channel(alpha: Tensor, channels: int) -> Tensor:
+        """The scatter's weight (B, 1, H, W) for `channels` colour channels: broadcast as it is."""
+        return alpha
+
+    @staticmethod
+    def scatter_add(size: int, index: Tensor, values: Tensor) -> Tensor:
+        """(size, V) zeros with values (N, V) added at the rows `index` (N,)."""
+        return torch.zeros(size, values.shape[1], dtype=values.dtype, device=values.device).index_add(0, index, values)
+
+    @staticmethod
+    def sum_chunks(splat: Callable, times: Tensor, masses: Tensor, chunk: int, fixed: tuple, start: Tensor) -> Tensor:
+        """start + the sum of splat(times, masses, *fixed) over chunks of `chunk` points, a Python
+        loop. With more than one chunk and a gradient to take, each chunk is recomputed in the
+        backward (activation checkpointing), which keeps O(pixels) memory, not O(pixels x points);
+        under torch.compile the compiler chooses what the backward keeps."""
+        samples = times.shape[0]
+        recompute = chunk < samples and torch.is_grad_enabled() and not torch.compiler.is_compiling()
+        total = start
+        for first in range(0, samples, chunk):
+            part = (times[first : first + chunk], masses[first : first + chunk], *fixed)
+            if recompute:
+                total = total + checkpoint(splat, *part, use_reentrant=False, preserve_rng_state=False)
+            else:
+                total = total + splat(*part)
+        return total
+
+    @staticmethod
+    def widen_window(window: Any, dtype: torch.dtype) -> Any:
+        """The shutter window as it is (torch promotes a fitted parameter's dtype by itself)."""
+        return window
+
+    # -- the fused CPU kernels (`torch_impl._fused`, `torch_impl._fused_scatter`) ----------------------
+
+    @staticmethod
+    def kernel_reason(op: str, color: Tensor, o: Any, *arrays: Tensor) -> str | None:
+        """Why `op`'s fused kernel cannot run these inputs and options, or None when it can."""
+        from torch_impl import _fused, _fused_scatter
+
+        if op == "gather_blur":
+            return _fused.gather_unfused_reason(color, o.sampling)
+        if op == "bezier_scatter":
+            return _fused_scatter.unfused_reason(color)
+        return _fused.unfused_reason(o, color, *arrays)
+
+    @staticmethod
+    def run_kernel(op: str, *arrays: Tensor) -> Tensor:
+        """`op` on its fused kernel: the arrays, then the options."""
+        from diffblur.ops.sampling import position_dtype
+        from torch_impl import _fused, _fused_scatter
+
+        if op == "bezier_scatter":  # color, depth, kind, terms, masses, extent, moving, paper
+            return _fused_scatter.fused_splat(*arrays)
+        *arrays, o = arrays
+        if op == "gather_blur":
+            return _fused.fused_gather(*arrays, o.window, o.samples, o.classes, position_dtype(TORCH, arrays[0].dtype))
+        return _fused.fused_reconstruct(*arrays, o)
 
 
 TORCH = TorchBackend()

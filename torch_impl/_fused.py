@@ -22,9 +22,10 @@ from torch import Tensor
 
 from diffblur.kernels import gather as gather_kernel
 from diffblur.kernels import reconstruct as reconstruct_kernel
-from diffblur._scatter_options import has_constant_parameters
-from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED
-from torch_impl._primitives import _safe_length, neighbor_max, tile_max
+from diffblur.ops import primitives
+from diffblur.ops.adaptive import ADAPTIVE_TILE, STILL_SPEED
+from diffblur.ops.scatter import has_constant_parameters
+from torch_impl._backend import TORCH
 
 
 def _dtype_name(x: Tensor) -> str:
@@ -47,9 +48,9 @@ def unfused_reason(o, color: Tensor, jitter: Tensor) -> str | None:
     return reason
 
 
-def gather_unfused_reason(color: Tensor, sampling: str, pyramid: bool) -> str | None:
+def gather_unfused_reason(color: Tensor, sampling: str) -> str | None:
     """Why the fused gather_blur cannot run these inputs and options, or None when it can."""
-    return gather_kernel.gather_unfused_reason(sampling, pyramid, _dtype_name(color)) or _placement_reason(color)
+    return gather_kernel.gather_unfused_reason(sampling, _dtype_name(color)) or _placement_reason(color)
 
 
 def _array(tensor: Tensor):
@@ -168,10 +169,10 @@ _first_order_only(reconstruct_backward, "reconstruct")
 
 def fused_reconstruct(color: Tensor, velocity: Tensor, depth: Tensor, jitter: Tensor, o) -> Tensor:
     """reconstruct (options `o`, adaptive or not) on the fused kernel; see `unfused_reason`."""
-    neighbors = neighbor_max(tile_max(velocity, o.tile))
-    speed = _safe_length(neighbors.detach())[:, 0]
+    neighbors = primitives.neighbor_max(TORCH, primitives.tile_max(TORCH, velocity, o.tile))
+    speed = primitives.safe_length(TORCH, neighbors.detach())[:, 0]
     counts = reconstruct_kernel.tile_counts(speed, o, torch)
-    settings = (int(o.tile), float(o.soft_z_extent), float(o.min_radius), o.directions == "neighbor_and_own")
+    settings = (int(o.tile), float(o.band), float(o.min_radius), o.directions == "neighbor_and_own")
     out, _ = reconstruct_forward(color, velocity, depth, neighbors, counts.to(torch.int32), jitter.expand(-1, 1, -1, -1), *settings)
     return out
 

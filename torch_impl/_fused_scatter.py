@@ -15,7 +15,8 @@ from torch import Tensor
 
 from diffblur.kernels import scatter as scatter_kernel
 from torch_impl._fused import _first_order_only
-from torch_impl._primitives import _floor_extent
+from diffblur.ops.primitives import floor_extent
+from torch_impl._backend import TORCH
 
 
 def unfused_reason(color: Tensor) -> str | None:
@@ -88,7 +89,7 @@ def _path(kind: str, terms: tuple) -> Tensor:
 def fused_splat(color: Tensor, depth: Tensor, kind: str, terms: tuple, masses: Tensor, extent: float | Tensor, moving: Tensor, paper: bool) -> Tensor:
     """The sums (B, C + 1, H, W) of omega * [color, 1] over every moving pixel's points (`_scatter`'s
     accumulation, cropped to the image), on the fused kernel; see `unfused_reason`."""
-    extent = _floor_extent(extent)
+    extent = floor_extent(TORCH, extent)
     if not isinstance(extent, Tensor):  # a number: the tensor ops compare in the depth's dtype
         extent = torch.tensor(extent, dtype=depth.dtype)
     return splat_forward(color, depth, _path(kind, terms), masses, extent.to(depth.dtype), moving, kind == "arc", bool(paper))

@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import torch
 from jaxtyping import Float
 from torch import Tensor, nn
 
 from diffblur import checks
-from diffblur.modules import bezier_paths, check_method_options, learnable_shutter_fields, require_inputs, shutter_option
-from diffblur.shutters import get_shutter
+from diffblur.ops.module import blur, check_method_options, learnable_shutter_fields, shutter_option
+from torch_impl._backend import TORCH
 from torch_impl._gather import gather_blur
 from torch_impl._reconstruct import reconstruct
 from torch_impl._scatter import bezier_scatter
@@ -71,33 +69,17 @@ class MotionBlur(nn.Module):
         offset_mid_prev: Float[Tensor, "b 2 h w"] | None = None,
         arc_center: Float[Tensor, "b 2 h w"] | None = None,
         arc_angle: Float[Tensor, "b 1 h w"] | None = None,
-        background: Float[Tensor, "b c h w"] | None = None,
+        fill: Float[Tensor, "b c h w"] | None = None,
     ) -> Float[Tensor, "b c h w"]:
         """Blur `color` (B, C, H, W) by `velocity` (B, 2, H, W) x exposure, with `depth` (B, 1, H, W)
         where the method reads it.
 
         "bezier" takes one path: a velocity V (the segment from X - V to X + V), or offset_prev and
         offset_next (and offset_mid_prev with degree=3), or arc_center and arc_angle, as
-        `bezier_scatter` does; and optionally its two-layer `background`."""
+        `bezier_scatter` does; and optionally the scene behind the moving objects as `fill` (an array;
+        a fill of "still" or "color" is an option of the layer)."""
         paths = {"offset_prev": offset_prev, "offset_next": offset_next, "offset_mid_prev": offset_mid_prev, "arc_center": arc_center, "arc_angle": arc_angle}
-        if self.method != "bezier":
-            for name, value in (*paths.items(), ("background", background)):
-                if value is not None:
-                    raise TypeError(f"MotionBlur(method={self.method!r}) takes {name} only with method='bezier'")
-        require_inputs(self.method, {"velocity": velocity, "depth": depth, **paths})
-        options = dict(self.options)
-        if len(self.shutter_shape):
-            window = get_shutter(shutter_option(_OPS[self.method], options))
-            options["shutter"] = dataclasses.replace(window, **{k: v.to(color.dtype) for k, v in self.shutter_shape.items()})
-        if self.method == "bezier":
-            given = bezier_paths({"velocity": velocity, **paths}, self.exposure.to(color.dtype), options.get("degree", 2))
-            return bezier_scatter(color, depth, **given, background=background, **options)
-        scaled = velocity * self.exposure.to(velocity.dtype)
-        if self.method == "reconstruct":
-            return reconstruct(color, scaled, depth, **options)
-        if self.method in ("warp_blend", "accumulate"):
-            return _OPS[self.method](color, scaled, **options)
-        return gather_blur(color, scaled, **options)
+        return blur(TORCH, _OPS, self.method, self.options, self.exposure, dict(self.shutter_shape), color, velocity, depth, paths, fill)
 
     def extra_repr(self) -> str:
         return f"method={self.method!r}, options={self.options}"

@@ -3,8 +3,6 @@
 
 from __future__ import annotations
 
-import functools
-
 import torch
 from jaxtyping import Float
 from torch import Tensor
@@ -76,12 +74,3 @@ def neighbor_max(tile_velocity: Float[Tensor, "b 2 th tw"]) -> Float[Tensor, "b 
 def interleaved_gradient_noise(height: int, width: int, *, dtype: torch.dtype | None = None, device: torch.device | str | None = None) -> Float[Tensor, "h w"]:
     return p.interleaved_gradient_noise_op(TORCH, height, width, dtype=dtype, device=device)
 
-
-# The math without the checks, for the backend's other modules until they run on `diffblur.ops`.
-_cone = functools.partial(p.cone, TORCH)
-_cylinder = functools.partial(p.cylinder, TORCH)
-_safe_length = functools.partial(p.safe_length, TORCH)
-_soft_depth_compare = functools.partial(p.soft_depth_compare, TORCH)
-_squared_length = functools.partial(p.squared_length, TORCH)
-_floor_speed = functools.partial(p.floor_speed, TORCH)
-_floor_extent = functools.partial(p.floor_extent, TORCH)

@@ -1,7 +1,7 @@
 """The fused CPU kernels (numba) of `gather_blur`, behind the PyTorch and JAX ops' custom gradients.
 
 out[X] = sum_k m[n, k] C[X - t_k V[X]] with n the pixel's tile count and t_k = (2k + 1) / n - 1
-(`diffblur.taps.gather_tap_times`); the mass table m (S + 1, S) holds row n for each count n in use,
+(`diffblur.ops.taps.gather_tap_times`); the mass table m (S + 1, S) holds row n for each count n in use,
 so adaptive classes and the shutter (any window: its masses are an input with a gradient) come in
 as data. Only colour is read at the taps; the velocity is read at X. The layout is
 `diffblur.kernels.reconstruct`'s (pairs of the colour, blocks of one row as vectors, scratch
@@ -46,14 +46,12 @@ __all__ = [
 ]
 
 
-def gather_unfused_reason(sampling: str, pyramid: bool, dtype_name: str) -> str | None:
+def gather_unfused_reason(sampling: str, dtype_name: str) -> str | None:
     """Why `gather_blur` with these options cannot take the fused path, or None when it can."""
     if numba is None:
         return "numba is not installed"
     if sampling != "bilinear":
-        return f"sampling={sampling!r} (the fused kernel is bilinear)"
-    if pyramid:
-        return "pyramid=True"
+        return f"sampling={sampling!r} (the fused kernel reads bilinearly, from the image only)"
     if dtype_name not in ("float32", "float64"):
         return f"dtype {dtype_name} (the fused kernel takes float32 and float64)"
     return None
@@ -64,8 +62,8 @@ def gather_mass_table(window: Any, samples: int, classes: tuple[int, ...], xp: A
     masses of n taps for each count n in `classes`, zeros elsewhere. A window with constant
     parameters gets it from NumPy in float64; one with a parameter being fitted from `xp` ops, which
     carry its gradient."""
-    from diffblur._scatter_options import has_constant_parameters
-    from diffblur.taps import gather_tap_times, stratum_weights
+    from diffblur.ops.scatter import has_constant_parameters
+    from diffblur.ops.taps import gather_tap_times, stratum_weights
 
     if has_constant_parameters(window):
         table = np.zeros((samples + 1, samples))
@@ -228,7 +226,7 @@ def _gather_backward(
 @_jit
 def _gather_tile_counts(velocity, classes, still, tile, counts):
     """counts (B, TH, TW): the taps of each tile's class from its largest |V|, as
-    `diffblur._adaptive.tile_sample_counts` (0 at most `still`, else the smallest class c with
+    `diffblur.ops.adaptive.tile_sample_counts` (0 at most `still`, else the smallest class c with
     2 |V| <= c, else the last)."""
     batch, _, height, width = velocity.shape
     _, tiles_y, tiles_x = counts.shape

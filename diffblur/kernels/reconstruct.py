@@ -66,18 +66,16 @@ _INVERSE_CYLINDER_SPAN = 1.0 / (CYLINDER_OUTER - CYLINDER_INNER)
 
 
 def reconstruct_unfused_reason(o: Any, dtype_name: str) -> str | None:
-    """Why `reconstruct` with options `o` (`diffblur.taps.ReconstructOptions`) cannot take the
+    """Why `reconstruct` with options `o` (`diffblur.ops.reconstruct.ReconstructOptions`) cannot take the
     fused path, or None when it can. dtype_name: the image's dtype, as a string."""
     from diffblur.shutters import Box
 
     if numba is None:
         return "numba is not installed"
     if o.sampling != "bilinear":
-        return f"sampling={o.sampling!r} (the fused kernel is bilinear)"
+        return f"sampling={o.sampling!r} (the fused kernel reads bilinearly, from the image only)"
     if type(o.window) is not Box:
         return f"shutter {o.window.name!r} (the fused kernel takes the box shutter)"
-    if o.pyramid:
-        return "pyramid=True"
     if dtype_name not in ("float32", "float64"):
         return f"dtype {dtype_name} (the fused kernel takes float32 and float64)"
     return None
@@ -86,7 +84,7 @@ def reconstruct_unfused_reason(o: Any, dtype_name: str) -> str | None:
 def tile_counts(speed: Any, o: Any, xp: Any) -> Any:
     """The kernel's taps per tile from the tiles' |NeighborMax| (any shape, numpy/torch/jax.numpy):
     the adaptive classes, else the full rate, 0 where the early-out returns the image."""
-    from diffblur._adaptive import still_speed, tile_sample_counts
+    from diffblur.ops.adaptive import still_speed, tile_sample_counts
 
     if o.classes is not None:
         return tile_sample_counts(speed, o.classes, still_speed(o.early_out), xp)

@@ -9,7 +9,7 @@ mask, the normalisation and the fill stay tensor ops, so autograd carries the ke
 w.r.t. the terms and the masses back to the offsets and the shutter's parameters exactly as on the
 pure path.
 
-A source pixel's point k at time t_k (`_scatter_options.point_times`) sits at p(t_k) on its path and
+A source pixel's point k at time t_k (`diffblur.ops.scatter.point_times`) sits at p(t_k) on its path and
 splats omega = bilinear * soft_depth_compare(destination depth, source depth, extent) * weight, with
 weight = m_k (times 2 |p'(t_k)| for normalization="paper"), to the 4 pixels around it on the image
 padded by a one-pixel ring, adding omega [color, 1]. The kernels repeat the tensor ops' arithmetic
@@ -33,7 +33,7 @@ import math
 
 import numpy as np
 
-from diffblur._scatter_options import point_times
+from diffblur.ops.scatter import point_times
 from diffblur.kernels.shared import _inline, _jit, _length, _soft_depth_compare, _threads, numba, read_only, row_order
 
 __all__ = ["ARC_CHANNELS", "BEZIER_CHANNELS", "splat_backward", "splat_forward", "splat_unfused_reason"]

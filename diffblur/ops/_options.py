@@ -4,12 +4,16 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import inspect
 import textwrap
 from collections.abc import Callable, Mapping
 from typing import Any, TypeVar
 
-__all__ = ["OpOptions", "option_names", "public"]
+from diffblur import checks
+from diffblur.conventions import IMPLS
+
+__all__ = ["OpOptions", "impl_option", "option_names", "public", "takes_kernel"]
 
 Options = TypeVar("Options", bound="OpOptions")
 
@@ -50,11 +54,15 @@ def _option_parameters(options: type[OpOptions]) -> list[inspect.Parameter]:
 
 def public(doc: str, options: type[OpOptions] | None = None, *, example: str = "") -> Callable[[Callable], Callable]:
     """Decorate a backend's public function: its docstring becomes `doc` followed by the backend's
-    `example` (a doctest), and, with `options`, its signature shows the function's own array
-    parameters followed by every option, keyword-only with its default (the function itself takes
-    them as **options and hands them to `options.take`)."""
+    `example` (a doctest). With `options`, its signature shows the function's own array parameters
+    followed by every option, keyword-only with its default (the function itself takes them as
+    **options and hands them to `options.take`, which names the valid ones for an unknown one).
+    Without, the function is wrapped so that an unknown keyword raises a TypeError listing its
+    keyword-only parameters (Python's own message names only the unknown one)."""
 
     def decorate(function: Callable) -> Callable:
+        if options is None:
+            function = _listing_keywords(function)
         text = inspect.cleandoc(doc)
         if example:
             text += "\n\n" + textwrap.dedent(example).strip("\n")
@@ -66,3 +74,34 @@ def public(doc: str, options: type[OpOptions] | None = None, *, example: str = "
         return function
 
     return decorate
+
+
+def _listing_keywords(function: Callable) -> Callable:
+    parameters = inspect.signature(function).parameters
+    known = frozenset(parameters)
+    keywords = ", ".join(p.name for p in parameters.values() if p.kind is inspect.Parameter.KEYWORD_ONLY)
+
+    @functools.wraps(function)
+    def checked(*args: Any, **kwargs: Any) -> Any:
+        for name in kwargs:
+            if name not in known:
+                raise TypeError(f"{function.__name__}() got an unknown option {name!r}; valid options: {keywords}")
+        return function(*args, **kwargs)
+
+    return checked
+
+
+def impl_option(impl: object) -> str:
+    """Check `impl` ("auto", "fused" or "tensor", `diffblur.conventions.IMPLS`)."""
+    return checks.require_choice("impl", impl, IMPLS)
+
+
+def takes_kernel(op: str, impl: str, reason: str | None) -> bool:
+    """Whether `op` runs on its fused kernel, given `impl` and why the kernel cannot run these inputs
+    (`reason`, None when it can): "auto" takes the kernel where it can, "fused" insists (ValueError
+    naming the reason), "tensor" never takes it."""
+    if impl == "tensor":
+        return False
+    if reason is not None and impl == "fused":
+        raise ValueError(f"{op}(impl='fused') cannot run on the fused kernel: {reason}; impl='auto' or 'tensor' runs the tensor ops")
+    return reason is None

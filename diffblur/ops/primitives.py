@@ -124,7 +124,7 @@ def _largest(be: Any, candidates: Any, squared: Any, axis: int) -> Any:
     """Pick, along `axis` of `candidates` (B, 2, ..., N, ...), the vector whose `squared` length
     (B, ..., N, ...) is largest; argmax returns the first maximum, which is the tie rule."""
     index = be.argmax(squared, axis - 1)[:, None]
-    return be.pick_along(candidates, index, axis)
+    return be.xp.squeeze(be.take_along(candidates, index, axis), axis)
 
 
 def tile_max(be: Any, velocity: Any, tile: int) -> Any:

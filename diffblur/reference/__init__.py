@@ -8,7 +8,8 @@ Conventions (see `diffblur.conventions`): arrays are NCHW, velocity channel 0 is
 positive (larger = farther).
 
 This module holds the primitives, `gather_blur` and `reconstruct`; `_scatter` holds
-`bezier_scatter` and `_warp` `warp_blend` and `accumulate_warps`, all exported here.
+`bezier_scatter`, `_warp` `warp_blend` and `accumulate_warps`, `_motion_ids`
+`velocity_from_motion_ids`, all exported here.
 """
 
 from __future__ import annotations
@@ -19,8 +20,8 @@ from functools import lru_cache
 import numpy as np
 
 from diffblur import checks
-from diffblur._pyramid import level_of_detail, numpy_levels, numpy_sample_levels, pyramid_option
-from diffblur._adaptive import ADAPTIVE_TILE, STILL_SPEED, adaptive_classes, select_by_tile, still_speed, tile_sample_counts
+from diffblur.ops.pyramid import level_of_detail, numpy_levels, numpy_sample_levels
+from diffblur.ops.adaptive import ADAPTIVE_TILE, STILL_SPEED, select_by_tile, still_speed, tile_sample_counts
 from diffblur.conventions import (
     CYLINDER_INNER,
     CYLINDER_OUTER,
@@ -39,7 +40,7 @@ from diffblur.conventions import (
     VECTOR_CHANNELS,
 )
 from diffblur.shutters import ShutterWindow, get_shutter
-from diffblur.taps import gather_tap_times, reconstruct_options, reconstruct_tap_time, shutter_factor, stratum_weights
+from diffblur.ops.taps import gather_tap_times, reconstruct_tap_time, shutter_factor, stratum_weights
 
 __all__ = [
     "clamp01",
@@ -242,7 +243,6 @@ def gather_blur(
     shutter: str | ShutterWindow = DEFAULT_SHUTTER,
     sampling: str = "bilinear",
     adaptive: bool | tuple[int, ...] = False,
-    pyramid: bool = False,
 ) -> np.ndarray:
     """The per-pixel gather of seed 001 (Rosado): each pixel averages the sharp image along its own
     velocity over the exposure, weighted by the shutter.
@@ -252,10 +252,10 @@ def gather_blur(
 
         out[X] = sum_k m_k C[X - tau_k V[X]] / sum_k m_k,  m_k = shutter mass of stratum k.
     """
-    checks.require_choice("sampling", sampling, SAMPLING_MODES)
-    window = get_shutter(shutter)
-    classes = adaptive_classes(adaptive, samples)
-    pyramid = pyramid_option(pyramid, adaptive, sampling)
+    from diffblur.ops.gather import GatherOptions
+
+    o = GatherOptions(samples=samples, shutter=shutter, sampling=sampling, adaptive=adaptive)
+    window, classes, pyramid = o.window, o.classes, o.sampling == "pyramid"
     if classes is not None:  # each tile: its class's filter, or the image where still
         speeds = np.hypot(*np.moveaxis(tile_max(velocity, ADAPTIVE_TILE), 1, 0))
         counts = tile_sample_counts(speeds, classes, STILL_SPEED, np)
@@ -264,7 +264,7 @@ def gather_blur(
     times = np.array(gather_tap_times(samples))
     masses = stratum_weights(window, times, 1.0 / samples, np)
     masses = masses / masses.sum()
-    sample = sample_bilinear if sampling == "bilinear" else sample_nearest
+    sample = sample_nearest if sampling == "nearest" else sample_bilinear
     batch, _, height, width = color.shape
     levels = [numpy_levels(color[b]) for b in range(batch)] if pyramid else None
     out = np.zeros_like(color)
@@ -298,7 +298,6 @@ def reconstruct(
     directions: str = "neighbor",
     min_radius: float = DEFAULT_MIN_RADIUS,
     adaptive: bool | tuple[int, ...] = False,
-    pyramid: bool = False,
 ) -> np.ndarray:
     """Seed 000 Listing 1, the reconstruction filter, pixel by pixel.
 
@@ -315,18 +314,20 @@ def reconstruct(
     jitter: "noise" (interleaved gradient noise - 0.5), "none", or an array (B, 1, H, W) in [-0.5, 0.5].
     Speeds |V| below min_radius count as min_radius (the paper's buffer is clamped to >= 0.5 px).
     """
-    o = reconstruct_options(
+    from diffblur.ops.reconstruct import ReconstructOptions
+
+    o = ReconstructOptions(
         max_radius=max_radius,
         samples=samples,
         soft_z_extent=soft_z_extent,
         relative_z_extent=relative_z_extent,
+        jitter=jitter,
         sampling=sampling,
         shutter=shutter,
         early_out=early_out,
         directions=directions,
         min_radius=min_radius,
         adaptive=adaptive,
-        pyramid=pyramid,
     )
     if o.classes is not None:  # each tile: its class's filter, or the image where still
         options = dict(max_radius=max_radius, soft_z_extent=soft_z_extent, relative_z_extent=relative_z_extent, jitter=jitter, sampling=sampling, shutter=shutter)
@@ -340,16 +341,15 @@ def reconstruct(
         depth = np.log(depth)
     batch, _, height, width = color.shape
     if isinstance(jitter, str):
-        checks.require_choice("jitter", jitter, JITTER_MODES)
         noise = noise_jitter(height, width) if jitter == "noise" else np.zeros((height, width))
         jitter = np.broadcast_to(noise, (batch, 1, height, width))
     neighbors = neighbor_max(tile_max(velocity, tile))
-    sample = sample_bilinear if sampling == "bilinear" else sample_nearest
+    sample = sample_nearest if sampling == "nearest" else sample_bilinear
     # Read C, V and Z at a tap in one go.
     buffers = np.concatenate([color, velocity, depth], axis=1)
     channels = color.shape[1]
     center_factor = float(shutter_factor(window, np.array(0.0), samples, np))
-    levels = [numpy_levels(color[b]) for b in range(batch)] if o.pyramid else None
+    levels = [numpy_levels(color[b]) for b in range(batch)] if sampling == "pyramid" else None
     out = np.zeros_like(color)
     for b in range(batch):
         for i in range(height):
@@ -375,12 +375,12 @@ def reconstruct(
                         distance = abs(t) * math.hypot(*direction)
                     read = sample(buffers[b], x, y)
                     c_y, v_y, z_y = read[:channels], read[channels : channels + 2], read[channels + 2]
-                    if o.pyramid:  # the colour from the level that matches the tap spacing
+                    if levels is not None:  # the colour from the level that matches the tap spacing
                         lod = float(level_of_detail(np.array(2.0 * math.hypot(*direction) / (samples + 1)), len(levels[b]), np))
                         c_y = numpy_sample_levels(levels[b], x, y, lod)
                     speed_y = max(math.hypot(*v_y), min_radius)
-                    front = soft_depth_compare(z_x, z_y, o.soft_z_extent)  # Y in front of X
-                    back = soft_depth_compare(z_y, z_x, o.soft_z_extent)  # Y behind X
+                    front = soft_depth_compare(z_x, z_y, o.band)  # Y in front of X
+                    back = soft_depth_compare(z_y, z_x, o.band)  # Y behind X
                     speeds_y, speeds_x, distances = np.array(speed_y), np.array(speed_x), np.array(distance)
                     alpha = (
                         front * cone(distances, speeds_y)  # case 1: blurry Y in front of any X
@@ -401,3 +401,7 @@ __all__ += ["bezier_control_points", "bezier_scatter"]
 from diffblur.reference._warp import accumulate_warps, warp_blend  # noqa: E402
 
 __all__ += ["accumulate_warps", "warp_blend"]
+
+from diffblur.reference._motion_ids import velocity_from_motion_ids  # noqa: E402
+
+__all__ += ["velocity_from_motion_ids"]

@@ -12,8 +12,7 @@ import math
 import numpy as np
 
 from diffblur import checks
-from diffblur._scatter_options import (
-    COMPOSITES,
+from diffblur.ops.scatter import (
     DEFAULT_BACKGROUND_WEIGHT,
     DEFAULT_COMPOSITE,
     DEFAULT_FILL,
@@ -21,18 +20,17 @@ from diffblur._scatter_options import (
     DEFAULT_NORMALIZATION,
     DEFAULT_SHUTTER,
     DEFAULT_RELATIVE_Z_EXTENT,
-    FILLS,
     MID_PREV_TIME,
+    ScatterOptions,
     length_times,
     point_count,
     point_masses,
     point_times,
-    resolve_options,
     resolve_path,
     warn_without_still,
 )
 from diffblur.conventions import DEPTH_CHANNELS, STILL_SPEED
-from diffblur.shutters import ShutterWindow, get_shutter
+from diffblur.shutters import ShutterWindow
 
 __all__ = ["bezier_control_points", "bezier_scatter", "still_fill"]
 
@@ -164,8 +162,7 @@ def bezier_scatter(
     max_samples: int = DEFAULT_MAX_SAMPLES,
     shutter: str | ShutterWindow = DEFAULT_SHUTTER,
     normalization: str = DEFAULT_NORMALIZATION,
-    fill: str = DEFAULT_FILL,
-    background: np.ndarray | None = None,
+    fill: str | np.ndarray = DEFAULT_FILL,
     background_weight: float = DEFAULT_BACKGROUND_WEIGHT,
     soft_z_extent: float | np.ndarray | None = None,
     relative_z_extent: float | np.ndarray = DEFAULT_RELATIVE_Z_EXTENT,
@@ -181,8 +178,8 @@ def bezier_scatter(
 
     f = 1 ("coverage") or 2 |p_S'(t_k)| ("paper": weight per pixel of path length, 1 for the box
     shutter), adding omega * color[S] to A[D] and omega to alpha[D]. Then, with fill = color where the
-    pixel is still, and where it moves `background` if given, else `still_fill` of the still pixels
-    (fill="still") or color (fill="color"):
+    pixel is still, and where it moves the fill: the array given as `fill`, else `still_fill` of the
+    still pixels (fill="still") or color (fill="color"):
 
         coverage: (A + max(1 - alpha, 0) fill) / max(alpha, 1)
         paper:    (A + w_b fill) / (alpha + w_b)
@@ -200,18 +197,27 @@ def bezier_scatter(
         arc_center=arc_center is not None,
         arc_angle=arc_angle is not None,
     )
-    samples, max_samples, normalization, background_weight = resolve_options(
-        samples=samples, max_samples=max_samples, normalization=normalization, background_weight=background_weight
+    o = ScatterOptions(
+        degree=degree,
+        samples=samples,
+        max_samples=max_samples,
+        shutter=shutter,
+        normalization=normalization,
+        fill=fill,
+        background_weight=background_weight,
+        soft_z_extent=soft_z_extent,
+        relative_z_extent=relative_z_extent,
+        composite=composite,
     )
+    samples, normalization, background_weight, composite, background = o.samples, o.normalization, o.background_weight, o.composite, o.background
+    fill = "array" if background is not None else o.fill
     batch, channels, height, width = checks.require_image("color", color.shape)
     checks.require_image("depth", depth.shape, channels=DEPTH_CHANNELS)
-    fill = checks.require_choice("fill", fill, FILLS)
-    composite = checks.require_choice("composite", composite, COMPOSITES)
     relative, extent = checks.depth_band(soft_z_extent, relative_z_extent)
     extent = float(extent)
     if relative:  # the band relative to depth: compare log depths (`diffblur.checks.depth_band`)
         depth, extent = np.log(depth), math.log1p(extent)
-    window = get_shutter(shutter)
+    window = o.window
 
     def curve(b: int, i: int, j: int):
         """(moving, position(t), speed(t)) of the point seen at row i, column j."""

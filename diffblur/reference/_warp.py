@@ -1,21 +1,21 @@
 """NumPy references of the image-warping methods of seed 002: the accumulation baseline
 (`accumulate_warps`) and the iterative warp-and-blend (`warp_blend`). Pixel by pixel, for clarity;
-the definitions are in `diffblur._warp_options`."""
+the definitions are in `diffblur.ops.warp`."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from diffblur._warp_options import (
+from diffblur.ops.warp import (
     DEFAULT_ALPHA,
     DEFAULT_BACKWARD_SCALE,
     DEFAULT_INSTANTS,
     DEFAULT_ITERATIONS,
-    accumulate_options,
+    AccumulateOptions,
+    WarpBlendOptions,
     instant_masses,
     lookup_offset,
     require_path,
-    warp_blend_options,
 )
 from diffblur.conventions import DEFAULT_SHUTTER
 from diffblur.shutters import ShutterWindow
@@ -42,9 +42,9 @@ def accumulate_warps(
     """The accumulation buffer on the image: sum_k m_k C[X + p(-t_k)[X]] over `instants` instants
     t_k (stratum midpoints), m_k the shutter's mass on stratum k, p the path of the point seen at X
     (t V, or the parabola through offset_prev, 0, offset_next)."""
-    o = accumulate_options(instants=instants, shutter=shutter, sampling=sampling)
+    o = AccumulateOptions(instants=instants, shutter=shutter, sampling=sampling)
     require_path(velocity, offset_prev, offset_next)
-    masses = [float(m) for m in instant_masses(o, np)]
+    masses = [float(m) for m in instant_masses(o.window, np.asarray(o.times), np)]
     sample = _sampler(o.sampling)
     batch, _, height, width = color.shape
     out = np.zeros_like(color)
@@ -71,7 +71,7 @@ def warp_blend(
 ) -> np.ndarray:
     """Seed 002's iterative warp-and-blend: for each (s, a) of the schedule, largest warp first,
     R <- (1 - a) R + a / 2 (R[X + s V[X]] + R[X - backward_scale s V[X]]), starting from R = color."""
-    o = warp_blend_options(iterations=iterations, backward_scale=backward_scale, alpha=alpha, sampling=sampling)
+    o = WarpBlendOptions(iterations=iterations, backward_scale=backward_scale, alpha=alpha, sampling=sampling)
     sample = _sampler(o.sampling)
     batch, _, height, width = color.shape
     result = color.copy()

@@ -11,7 +11,7 @@ import numpy as np
 
 import jax_impl
 import torch_impl
-from diffblur import motion_ids
+from diffblur import reference
 from tests.equivalence.cases import Case
 
 SHAPE = (2, 1, 5, 6)
@@ -38,7 +38,7 @@ CASES = [
     Case(
         "velocity_from_motion_ids_image",
         _image_palette,
-        lambda ids, **a: motion_ids.velocity_from_motion_ids(ids.astype(np.int64), **a),
+        lambda ids, **a: reference.velocity_from_motion_ids(ids.astype(np.int64), **a),
         lambda ids, **a: torch_impl.velocity_from_motion_ids(ids.long(), **a),
         lambda ids, **a: jax_impl.velocity_from_motion_ids(ids.astype(jnp.int32), **a),
         differentiable=("palette",),
@@ -46,7 +46,7 @@ CASES = [
     Case(
         "velocity_from_motion_ids_world",
         _world_palette,
-        lambda ids, **a: motion_ids.velocity_from_motion_ids(ids.astype(np.int64), **a, **WORLD),
+        lambda ids, **a: reference.velocity_from_motion_ids(ids.astype(np.int64), **a, **WORLD),
         lambda ids, **a: torch_impl.velocity_from_motion_ids(ids.long(), **a, **WORLD),
         lambda ids, **a: jax_impl.velocity_from_motion_ids(ids.astype(jnp.int32), **a, **WORLD),
         differentiable=("palette", "depth"),

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from diffblur._adaptive import adaptive_classes, class_pixels, tile_sample_counts
+from diffblur.ops.adaptive import adaptive_classes, class_pixels, tile_sample_counts
 from tests.backends import backend  # noqa: F401
 
 
@@ -140,7 +140,7 @@ def test_bad_input(backend, call, error, pattern):
 
 
 def test_pyramid_levels_by_hand():
-    from diffblur._pyramid import level_of_detail, level_sizes, numpy_levels
+    from diffblur.ops.pyramid import level_of_detail, level_sizes, numpy_levels
 
     assert level_sizes(5, 3) == [(5, 3), (3, 2), (2, 1), (1, 1)]
     image = np.arange(9.0).reshape(1, 3, 3)

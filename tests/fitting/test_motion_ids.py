@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from diffblur import motion_ids
+from diffblur import reference
 
 
 def _ids(backend, values):
@@ -75,7 +75,7 @@ def test_bad_input(backend):
 
 
 def test_reference_matches_hand_values():
-    out = motion_ids.velocity_from_motion_ids(np.array([[[[1, 0]]]]), np.array([[[1.0, 2.0], [-3.0, 0.25]]]))
+    out = reference.velocity_from_motion_ids(np.array([[[[1, 0]]]]), np.array([[[1.0, 2.0], [-3.0, 0.25]]]))
     np.testing.assert_array_equal(out[0, :, 0], [[-3.0, 1.0], [0.25, 2.0]])
 
 

@@ -7,8 +7,9 @@ full rate `samples` when no smaller class is enough. Still tiles (r <= STILL_SPE
 early-out's EARLY_OUT_SPEED, 0.5 px more, when `reconstruct`'s early_out is on) take 0 taps: they return the
 image. A tile whose class is the full rate gets exactly the full-rate filter's result.
 
-The backends make the saving real by grouping the tiles of each class and running that class's
-filter on the compacted pixels of its tiles only (eager mode). Under `torch.compile` / `jax.jit`
+The ops make the saving real by grouping the tiles of each class and running that class's filter
+on the compacted pixels of its tiles only (eager mode): images are read as (B * H * W, K) tables, a
+pixel is its flat index b * H * W + y * W + x (`table`, `class_rows`, `sample_rows`). Under `torch.compile` / `jax.jit`
 the classes are data the compiler cannot size, so the backends compute every class on every pixel
 and select per tile: the same result, no saving (`ADAPTIVE_COMPILED_NOTE`). The fused CPU paths of
 `reconstruct` and `gather_blur` (`diffblur.kernels.reconstruct`, `diffblur.kernels.gather`) take the per-tile counts into their kernels
@@ -18,14 +19,27 @@ instead, which saves the work eagerly and under `jax.jit` alike.
 from __future__ import annotations
 
 import numbers
-from typing import Any
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from diffblur.conventions import EARLY_OUT_SPEED, STILL_SPEED
+from diffblur.ops.sampling import bilinear_read, position_dtype
 
 __all__ = [
     "ADAPTIVE_TILE",
+    "JIT_MIN_PIXELS",
+    "ClassRows",
+    "class_rows",
+    "compiled_if_worth",
+    "coordinates",
+    "pixel_counts",
+    "sample_rows",
+    "select",
+    "table",
+    "tile_index",
+    "untable",
     "STILL_SPEED",
     "adaptive_classes",
     "class_pixels",
@@ -102,3 +116,83 @@ def select_by_tile(color: np.ndarray, by_count: dict[int, np.ndarray], counts: n
 
 
 __all__ += ["select_by_tile"]
+
+
+# -- the compacted filters' tables, in a backend's ops -------------------------------------------------
+
+#: With fewer moving pixels than this, a backend that compiles (JAX) runs the compacted filter op by
+#: op: compiling it would cost more than it saves.
+JIT_MIN_PIXELS = 4096
+
+
+def table(be: Any, image: Any) -> Any:
+    """(B, K, H, W) -> (B * H * W, K), one row per pixel."""
+    batch, channels, height, width = image.shape
+    return be.permute(image, (0, 2, 3, 1)).reshape(batch * height * width, channels)
+
+
+def untable(be: Any, rows: Any, batch: int, height: int, width: int) -> Any:
+    return be.contiguous(be.permute(rows.reshape(batch, height, width, -1), (0, 3, 1, 2)))
+
+
+def sample_rows(be: Any, rows: Any, base: Any, x: Any, y: Any, height: int, width: int, mode: str) -> Any:
+    """rows (B * H * W, K) at positions x, y (P,) of the images starting at rows `base` (P,), read as
+    `diffblur.ops.sampling.sample` reads an image, in x's dtype."""
+    return bilinear_read(be, lambda row, column: rows[base + row * width + column], x, y, height, width, mode)
+
+
+def coordinates(be: Any, index: Any, height: int, width: int, dtype: Any) -> tuple[Any, Any, Any]:
+    """Row base b * H * W, and x, y (P,) in `position_dtype(dtype)`, of flat pixel indices."""
+    plane = height * width
+    within = index % plane
+    dtype = position_dtype(be, dtype)
+    return index - within, be.astype(within % width, dtype), be.astype(within // width, dtype)
+
+
+def tile_index(index: Any, height: int, width: int, tile: int, tiles_y: int, tiles_x: int) -> Any:
+    """The flat index b * TH * TW + ty * TW + tx of each flat pixel index's tile, in integers."""
+    plane = height * width
+    within = index % plane
+    return (index // plane) * (tiles_y * tiles_x) + (within // width // tile) * tiles_x + (within % width) // tile
+
+
+def pixel_counts(be: Any, counts: Any, tile: int, height: int, width: int) -> Any:
+    """(B, TH, TW) tile counts -> (B, 1, H, W) per pixel."""
+    return be.repeat(be.repeat(counts, tile, 1), tile, 2)[:, None, :height, :width]
+
+
+def select(be: Any, color: Any, by_count: dict[int, Any], counts: Any) -> Any:
+    """Per pixel, the output of its tile's class (`counts` per pixel), color where the tile is still."""
+    out = color
+    for count, filtered in by_count.items():
+        out = be.xp.where(counts == count, filtered, out)
+    return out
+
+
+class ClassRows(NamedTuple):
+    """A class's pixels: its tap count, the rows to read and to write (`Backend.row_indices`), and how
+    many pixels it has."""
+
+    count: int
+    read: Any
+    write: Any
+    size: int
+
+
+def class_rows(be: Any, counts: np.ndarray, classes: tuple[int, ...], tile: int, color: Any) -> list[ClassRows]:
+    """For each class with tiles, its pixels (counts: (B, TH, TW) NumPy tap counts per tile)."""
+    batch, _, height, width = color.shape
+    found = []
+    for count in classes:
+        pixels = class_pixels(counts, count, tile, height, width)
+        if pixels.size:
+            found.append(ClassRows(count, *be.row_indices(pixels, batch * height * width, color), pixels.size))
+    return found
+
+
+def compiled_if_worth(be: Any, function: Callable, found: list[ClassRows], static_argnames: tuple[str, ...], *, hashable: bool = True) -> Callable:
+    """`function` compiled whole by the backend (`Backend.compiled`) when the classes have
+    JIT_MIN_PIXELS pixels or more and its static arguments can key a cache, else as it is."""
+    if hashable and sum(rows.size for rows in found) >= JIT_MIN_PIXELS:
+        return be.compiled(function, static_argnames)
+    return function

@@ -16,19 +16,18 @@ of motions (one per object). The image velocity of a pixel is read from its pale
 
   defined while the point stays in front of the camera (|Vz| < Z).
 
-This module is the NumPy reference (the oracle of `torch_impl.velocity_from_motion_ids` and
-`jax_impl.velocity_from_motion_ids`) and holds the argument checks both backends call.
+This module holds the op for both frameworks, its argument checks and its docstring; the NumPy
+oracle is `diffblur.reference.velocity_from_motion_ids`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-
-import numpy as np
+from typing import Any
 
 from diffblur import checks
 
-__all__ = ["check_motion_id_arguments", "velocity_from_motion_ids", "world_velocity_message", "id_range_message"]
+__all__ = ["DOC", "check_motion_id_arguments", "id_range_message", "velocity_from_motion_ids", "world_velocity_message"]
 
 
 def id_range_message(palette_size: int) -> str:
@@ -79,50 +78,50 @@ def check_motion_id_arguments(
     return focal, (cx, cy)
 
 
-def velocity_from_motion_ids(
-    ids: np.ndarray,
-    palette: np.ndarray,
-    *,
-    depth: np.ndarray | None = None,
-    focal: float | None = None,
-    principal_point: tuple[float, float] | None = None,
-) -> np.ndarray:
-    """The (B, 2, H, W) image velocity of an ID map and its palette (module docstring).
+DOC = """The (B, 2, H, W) image velocity of a per-pixel motion ID map, differentiable w.r.t. the palette.
 
-    ids: (B, 1, H, W) integers in [0, K). palette: (B, K, 2) image velocities in pixels, or (B, K, 3)
-    world velocities with depth (B, 1, H, W) > |Vz| and focal (pixels); principal_point (cx, cy)
-    defaults to the image centre.
+    Args:
+        ids: (B, 1, H, W) integer IDs, each in [0, K).
+        palette: (B, K, 2) image velocities (pixels, half-spread, channel 0 = x), or (B, K, 3)
+            world velocities (Vx, Vy, Vz), the half-spread in camera space in depth's units.
+        depth: (B, 1, H, W) positive depth; needed for (and only for) a (B, K, 3) palette, with
+            |Vz| < depth everywhere.
+        focal: the pinhole's focal length in pixels (a (B, K, 3) palette only).
+        principal_point: (cx, cy) in pixels; default the image centre ((W - 1) / 2, (H - 1) / 2).
 
-    >>> ids = np.array([[[[0, 1], [1, 0]]]])
-    >>> palette = np.array([[[0.0, 0.0], [3.0, -1.0]]])
-    >>> velocity_from_motion_ids(ids, palette)[0, 0]
-    array([[0., 3.],
-           [3., 0.]])
+    Returns:
+        (B, 2, H, W) velocity in pixels; a world velocity V at depth Z is projected exactly as the
+        half-spread (proj(P + V) - proj(P - V)) / 2 (see `diffblur.ops.motion_ids`).
     """
-    ids = np.asarray(ids)
-    palette = np.asarray(palette)
+
+
+def velocity_from_motion_ids(
+    be: Any, ids: Any, palette: Any, *, depth: Any = None, focal: float | None = None, principal_point: tuple[float, float] | None = None
+) -> Any:
+    """The op, for a backend: its arguments checked, then the palette read per pixel."""
+    xp = be.xp
+    ids = be.array("ids", ids)
+    palette = checks.floating_array(be, "palette", palette)
+    if depth is not None:
+        depth = checks.floating_array(be, "depth", depth)
     focal, center = check_motion_id_arguments(
-        ids.shape, np.issubdtype(ids.dtype, np.integer), ids.dtype, palette.shape, None if depth is None else np.shape(depth), focal, principal_point
+        ids.shape, be.is_integer(ids), ids.dtype, palette.shape, None if depth is None else depth.shape, focal, principal_point
     )
-    palette_size = palette.shape[1]
-    if ids.min() < 0 or ids.max() >= palette_size:
-        raise ValueError(id_range_message(palette_size))
     batch, _, height, width = ids.shape
-    dims = palette.shape[2]
-    entry = np.empty((batch, dims, height, width), dtype=palette.dtype)
-    for b in range(batch):
-        for i in range(height):
-            for j in range(width):
-                entry[b, :, i, j] = palette[b, ids[b, 0, i, j]]
+    palette_size, dims = palette.shape[1], palette.shape[2]
+    be.require_same_device("ids", ids, "palette", palette)
+    ids = be.check_values(ids, xp.all((ids >= 0) & (ids < palette_size)), id_range_message(palette_size))
+    entry = be.take_along(palette, be.index(ids.reshape(batch, height * width, 1)), 1)  # (B, H W, D)
+    entry = be.permute(entry, (0, 2, 1)).reshape(batch, dims, height, width)
     if dims == 2:
         return entry
-    z = np.asarray(depth, dtype=palette.dtype)[:, 0]
-    vx, vy, vz = entry[:, 0], entry[:, 1], entry[:, 2]
-    if not np.all(np.abs(vz) < z):
-        raise ValueError(world_velocity_message())
-    x = np.arange(width, dtype=palette.dtype)[None, None, :]
-    y = np.arange(height, dtype=palette.dtype)[None, :, None]
-    denominator = z * z - vz * vz
-    u = z * (focal * vx - (x - center[0]) * vz) / denominator
-    v = z * (focal * vy - (y - center[1]) * vz) / denominator
-    return np.stack([u, v], axis=1).astype(palette.dtype)
+    checks.same_dtype_and_device(be, "depth", depth, "palette", palette)
+    depth = be.check_positive("depth", depth)
+    vx, vy, vz = entry[:, 0:1], entry[:, 1:2], entry[:, 2:3]
+    vz = be.check_values(vz, xp.all(xp.abs(vz) < depth), world_velocity_message())
+    x = be.arange(width, palette.dtype, palette).reshape(1, 1, 1, width)
+    y = be.arange(height, palette.dtype, palette).reshape(1, 1, height, 1)
+    denominator = depth * depth - vz * vz
+    u = depth * (focal * vx - (x - center[0]) * vz) / denominator
+    v = depth * (focal * vy - (y - center[1]) * vz) / denominator
+    return be.concat([u, v], 1)

@@ -1,4 +1,5 @@
-"""What the two `MotionBlur` modules share: the methods, their inputs, and option checking."""
+"""`MotionBlur`, the layer, for both frameworks: its methods and their inputs, its options checked, and
+its call (`blur`). Each backend's module holds the parameters (an `nn.Module`, an `eqx.Module`)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from diffblur import checks
-from diffblur._scatter_options import MID_PREV_TIME
+from diffblur.ops.scatter import MID_PREV_TIME
 from diffblur.shutters import ShutterWindow, get_shutter
 
 #: The methods of `MotionBlur`, with the inputs each reads besides color.
@@ -23,7 +24,7 @@ METHOD_INPUTS: dict[str, tuple[str, ...]] = {
 
 #: Arrays a method's op takes as keyword arguments: `MotionBlur`'s forward takes them, not its options.
 METHOD_ARRAY_INPUTS: dict[str, tuple[str, ...]] = {
-    "bezier": ("offset_mid_prev", "arc_center", "arc_angle", "background"),
+    "bezier": ("offset_mid_prev", "arc_center", "arc_angle"),
     "accumulate": ("offset_prev", "offset_next"),
 }
 
@@ -38,7 +39,9 @@ __all__ = [
     "BEZIER_PATHS",
     "METHOD_ARRAY_INPUTS",
     "METHOD_INPUTS",
+    "PATH_INPUTS",
     "bezier_path",
+    "blur",
     "bezier_paths",
     "check_method_options",
     "learnable_shutter_fields",
@@ -58,6 +61,8 @@ def check_method_options(method: str, op: Callable, options: Mapping[str, Any]) 
             raise TypeError(f"MotionBlur(method={method!r}): {name} is an array input of the layer's call, not an option")
         if name not in valid:
             raise TypeError(f"MotionBlur(method={method!r}) got an unknown option {name!r}; valid options: {', '.join(valid)}")
+    if not isinstance(options.get("fill", ""), str):
+        raise TypeError("MotionBlur(method='bezier'): an array fill (the scene behind) is an input of the layer's call, not an option")
     return dict(options)
 
 
@@ -116,3 +121,35 @@ def bezier_paths(given: Mapping[str, Any], exposure: Any, degree: int) -> dict[s
     if way == "offsets":
         return {n: None if given.get(n) is None else given[n] * exposure for n in BEZIER_PATHS["offsets"]}
     return {"offset_prev": None, "offset_next": None, "arc_center": given["arc_center"], "arc_angle": given["arc_angle"] * exposure}
+
+
+#: The path arrays the layer's call takes besides velocity and depth (method="bezier" only).
+PATH_INPUTS = ("offset_prev", "offset_next", "offset_mid_prev", "arc_center", "arc_angle")
+
+
+def blur(
+    be: Any, ops: Mapping[str, Callable], method: str, options: Mapping[str, Any], exposure: Any, shutter_shape: Mapping[str, Any], color: Any, velocity: Any, depth: Any, paths: Mapping[str, Any], fill: Any
+) -> Any:
+    """The layer's call, for a backend: `ops` maps each method to the backend's public op; exposure
+    (a number or a 0-d array) scales the velocity (or the bezier path); `shutter_shape` holds the
+    shutter's learnt shape parameters (empty when none); `fill`, method="bezier"'s scene behind (an
+    array) or None."""
+    if method != "bezier":
+        for name, value in (*paths.items(), ("fill", fill)):
+            if value is not None:
+                raise TypeError(f"MotionBlur(method={method!r}) takes {name} only with method='bezier'")
+    require_inputs(method, {"velocity": velocity, "depth": depth, **paths})
+    options = dict(options)
+    if shutter_shape:
+        window = get_shutter(shutter_option(ops[method], options))
+        options["shutter"] = dataclasses.replace(window, **{k: be.astype(v, color.dtype) for k, v in shutter_shape.items()})
+    exposure = be.asarray(exposure, color.dtype, color)
+    if method == "bezier":
+        if fill is not None:
+            options["fill"] = fill
+        given = bezier_paths({"velocity": velocity, **paths}, exposure, options.get("degree", 2))
+        return ops[method](color, depth, **given, **options)
+    scaled = velocity * be.astype(exposure, velocity.dtype)
+    if method == "reconstruct":
+        return ops[method](color, scaled, depth, **options)
+    return ops[method](color, scaled, **options)
