@@ -10,8 +10,11 @@ jax. Every message names the argument, the value it got and what is allowed, e.g
 from __future__ import annotations
 
 import math
+import os
+import sys
 import numbers
 from collections.abc import Iterable, Sequence
+from pathlib import Path
 
 __all__ = [
     "nonpositive_message",
@@ -252,3 +255,20 @@ def per_batch_scalar(be, name: str, value: object, like):
 
 
 __all__ += ["floating_array", "image_array", "per_batch_scalar", "positive_scalar", "same_dtype_and_device", "same_shape"]
+
+
+#: The library's own folders: a warning points at the first frame outside them.
+_LIBRARY_DIRS = tuple(str(Path(__file__).resolve().parents[1] / name) + os.sep for name in ("diffblur", "torch_impl", "jax_impl"))
+
+
+def caller_stacklevel() -> int:
+    """The `stacklevel` for a `warnings.warn` called from the library that points at the user's line:
+    the first frame outside diffblur, torch_impl and jax_impl, however many wrappers lie between
+    (the warning's caller counts as level 1)."""
+    frame, level = sys._getframe(1), 1
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(_LIBRARY_DIRS):
+        frame, level = frame.f_back, level + 1
+    return level
+
+
+__all__ += ["caller_stacklevel"]

@@ -150,9 +150,9 @@ def _blur(ctx: Context, velocity: Any, shutter: Any = None) -> Any:
         count = {"gather": o["samples"], "scatter": o.get("scatter_samples")}.get(o["method"])
         shutter = shutter_of(ctx, count) if count is not None else o["shutter"]
     # JAX's fused kernels have reverse-mode gradients only; LM and Dogleg take forward-mode Jacobians.
-    fused = False if ctx.be.name == "jax" and o.get("jac", "fwd") == "fwd" else None
+    impl = "tensor" if ctx.be.name == "jax" and o.get("jac", "fwd") == "fwd" else "auto"
     if o["method"] == "gather":
-        return ctx.be.ops.gather_blur(ctx.color, velocity, samples=o["samples"], shutter=shutter, fused=fused)
+        return ctx.be.ops.gather_blur(ctx.color, velocity, samples=o["samples"], shutter=shutter, impl=impl)
     if o["method"] == "scatter":
         # Seed 003's scatter of linear motion (offsets -V, +V) with the user's shutter, coverage
         # normalisation and the push-pull fill: the blur that spreads an object over the pixels it
@@ -161,11 +161,11 @@ def _blur(ctx: Context, velocity: Any, shutter: Any = None) -> Any:
         # would only repeat what the model says.
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=r"bezier_scatter\(fill='still'\) found no still pixel", category=UserWarning)
-            return ctx.be.ops.bezier_scatter(ctx.color, ctx.depth, -velocity, velocity, degree=1, samples=o["scatter_samples"], shutter=shutter, fused=fused, composite=COMPOSITE)
+            return ctx.be.ops.bezier_scatter(ctx.color, ctx.depth, -velocity, velocity, degree=1, samples=o["scatter_samples"], shutter=shutter, impl=impl, composite=COMPOSITE)
     # Seed 000's taps span S / (S + 1) of the exposure: scale the velocity so the blur spans all of it
     # and the parameters are the scene's (see recover's docstring).
     span = (o["samples"] + 1.0) / o["samples"]
-    return ctx.be.ops.reconstruct(ctx.color, velocity * span, ctx.depth, samples=o["samples"], max_radius=o["max_radius"], shutter=shutter, fused=fused)
+    return ctx.be.ops.reconstruct(ctx.color, velocity * span, ctx.depth, samples=o["samples"], max_radius=o["max_radius"], shutter=shutter, impl=impl)
 
 
 #: `covered`: a moving pixel counts as shown by the sharp frame where its paths cover at least this
@@ -189,7 +189,7 @@ def _hidden_share(ctx: Context, velocity: Any) -> Any:
         return layered_scatter(ctx, velocity, hidden_share=True)
     ones = ctx.depth * 0.0 + 1.0
     o = ctx.options
-    return 1.0 - ctx.be.ops.bezier_scatter(ones, ctx.depth, -velocity, velocity, degree=1, samples=o["scatter_samples"], shutter=shutter_of(ctx, o["scatter_samples"]), background=ones * 0.0, composite=COMPOSITE)
+    return 1.0 - ctx.be.ops.bezier_scatter(ones, ctx.depth, -velocity, velocity, degree=1, samples=o["scatter_samples"], shutter=shutter_of(ctx, o["scatter_samples"]), fill=ones * 0.0, composite=COMPOSITE)
 
 
 @dataclass
@@ -289,8 +289,8 @@ def layered_scatter(ctx: Context, motion: Any, *, hidden_share: bool = False) ->
     sources = be.concat([stack.sources] * n)
     depth = be.concat([stack.depth] * n)
     zero = sources * 0.0
-    # background=0: what no path covers adds nothing, so each layer comes out premultiplied.
-    splatted = be.ops.bezier_scatter(sources, depth, -motion, motion, degree=1, samples=o["scatter_samples"], shutter=shutter_of(ctx, o["scatter_samples"]), background=zero, composite=COMPOSITE)
+    # fill=0: what no path covers adds nothing, so each layer comes out premultiplied.
+    splatted = be.ops.bezier_scatter(sources, depth, -motion, motion, degree=1, samples=o["scatter_samples"], shutter=shutter_of(ctx, o["scatter_samples"]), fill=zero, composite=COMPOSITE)
     splatted = splatted.reshape(n, layers, channels + 2, ctx.height, ctx.width)
     out, through, hidden = 0.0, 1.0, 0.0
     partial_sum, partial_squares = 0.0, 0.0
@@ -853,10 +853,10 @@ class Rotation(Model):
     def render(self, p, ctx):
         o = ctx.options
         center = ctx.be.broadcast(p["center"].reshape(1, 2, 1, 1), (1, 2, ctx.height, ctx.width))
-        kwargs = {} if ctx.extras.get("background") is None else {"background": ctx.extras["background"]}
+        kwargs = {} if ctx.extras.get("background") is None else {"fill": ctx.extras["background"]}
         # JAX's fused scatter has reverse-mode gradients only; LM and Dogleg take forward-mode Jacobians.
         if ctx.be.name == "jax" and o.get("jac", "fwd") == "fwd":
-            kwargs["fused"] = False
+            kwargs["impl"] = "tensor"
         return ctx.be.ops.bezier_scatter(
             ctx.color, ctx.depth, None, None, arc_center=center, arc_angle=p["angle"] * ctx.extras["mask"], samples=o["arc_samples"], shutter=shutter_of(ctx, o["arc_samples"]), composite=COMPOSITE, **kwargs
         )

@@ -3,7 +3,7 @@
 
 The kernels run on the host, inside or outside `jax.jit`; reverse mode (grad, vjp) uses the
 kernels' backward, for the differentiated inputs only (`symbolic_zeros=True` tells the rules which). Forward mode (jvp, jacfwd, linearize) is not defined for a custom_vjp: such
-callers pass fused=False. NeighborMax, the tile classes and the shutter's masses stay jax.numpy
+callers pass impl="tensor". NeighborMax, the tile classes and the shutter's masses stay jax.numpy
 ops, so JAX carries the kernels' gradients w.r.t. NeighborMax and the masses back to the velocity
 and the shutter's parameters as on the pure path.
 """
@@ -36,7 +36,7 @@ def _backend_reason() -> str | None:
         # until XLA aborted the process (2 host devices, issue 25). The tensor ops shard.
         return (
             f"JAX has {jax.device_count()} devices and the fused kernel's host callback runs on one"
-            " (under a sharded jax.jit it deadlocked); pass fused=False, or run with one device"
+            " (under a sharded jax.jit it deadlocked); pass impl='tensor', or run with one device"
         )
     return None
 

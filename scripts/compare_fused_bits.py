@@ -5,7 +5,7 @@ for bit: run it on the code before a change and after it, then compare.
     PYTHONPATH=. python scripts/compare_fused_bits.py save after.npz      # on the new code
     python scripts/compare_fused_bits.py compare before.npz after.npz
 
-Each case runs `reconstruct`, `gather_blur` and `bezier_scatter` with fused=True in PyTorch and in
+Each case runs `reconstruct`, `gather_blur` and `bezier_scatter` with impl="fused" in PyTorch and in
 JAX, float32 and float64, and keeps the output and the gradients of <output, cotangent> w.r.t. every
 floating input (a fixed random cotangent). Only public names are used, so the script runs on either
 side of a reorganisation. `compare` passes when every array is identical (NaNs in the same places).
@@ -50,7 +50,7 @@ def _torch_run(op: str, options: dict, arrays: dict, inputs: tuple, cotangent: n
 
     tensors = {name: torch.tensor(arrays[name], requires_grad=name in inputs) for name in arrays}
     args = [tensors[name] for name in inputs]
-    out = getattr(torch_impl, op)(*args, fused=True, **options)
+    out = getattr(torch_impl, op)(*args, impl="fused", **options)
     grads = torch.autograd.grad(out, args, torch.tensor(cotangent))
     return [out.detach().numpy(), *(g.numpy() for g in grads)]
 
@@ -62,7 +62,7 @@ def _jax_run(op: str, options: dict, arrays: dict, inputs: tuple, cotangent: np.
     import jax_impl
 
     function = getattr(jax_impl, op)
-    out, vjp = jax.vjp(lambda *a: function(*a, fused=True, **options), *(jnp.asarray(arrays[name]) for name in inputs))
+    out, vjp = jax.vjp(lambda *a: function(*a, impl="fused", **options), *(jnp.asarray(arrays[name]) for name in inputs))
     return [np.asarray(out), *(np.asarray(g) for g in vjp(jnp.asarray(cotangent)))]
 
 

@@ -76,7 +76,7 @@ def coverage(b) -> np.ndarray:
     """Fraction of the exposure some moving path covers each pixel (no depth test), (H, W)."""
     from torch_impl._scatter import _bezier_terms, _splat_sums
     from torch_impl._sampling import pixel_grid
-    from diffblur._scatter_options import constant_masses, moving_mask
+    from diffblur.ops.scatter import constant_masses, moving_mask
     from diffblur.shutters import get_shutter
 
     color, depth = _t(b.color), _t(b.depth)

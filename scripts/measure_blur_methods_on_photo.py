@@ -21,7 +21,7 @@ import numpy as np
 from diffblur.scenes._textures import photo
 from diffblur.app.blur_image import BlurInputs, blur_image
 from diffblur.metrics import psnr
-from diffblur.modules import METHOD_INPUTS
+from diffblur.ops.module import METHOD_INPUTS
 
 VELOCITIES = ((4.0, 0.0), (10.0, 3.0), (-7.0, 18.0))
 REFERENCE_INSTANTS = 1001

@@ -11,7 +11,7 @@ Each PyTorch case runs in its own subprocess with a time limit and a fresh, empt
 inductor compiles C++ (minutes per op on 2 cores for the tensor ops), and a crash of its generated
 code ends the process; the table then says so instead of losing the sweep. The ops with a fused CPU
 kernel run twice: on their default, where the kernel is one custom operator in the graph, and with
-`fused=False`, the tensor ops that the compiler traces on other devices (and traced on the CPU too
+`impl="tensor"`, the tensor ops that the compiler traces on other devices (and traced on the CPU too
 before the kernels were operators). Inputs: float64, (1, 3, 8, 9) (tiny, to bound the compile), seeded.
 
     PYTHONPATH=. python scripts/measure_compile_vs_eager.py [--only NAME,...] [--limit 900] [--write]
@@ -49,12 +49,12 @@ CASES = {
     "tile_max": ("tile_max", "v", {}),
     "neighbor_max": ("neighbor_max", "v", {}),
     "gather_blur": ("gather_blur", "cv", {"samples": 5}),
-    "gather_blur fused=False": ("gather_blur", "cv", {"samples": 5, "fused": False}),
+    "gather_blur impl='tensor'": ("gather_blur", "cv", {"samples": 5, "impl": "tensor"}),
     "gather_blur adaptive": ("gather_blur", "cv", {"samples": 5, "adaptive": True}),
     "reconstruct": ("reconstruct", "cvz", {"samples": 5, "max_radius": 4.0}),
-    "reconstruct fused=False": ("reconstruct", "cvz", {"samples": 5, "max_radius": 4.0, "fused": False}),
+    "reconstruct impl='tensor'": ("reconstruct", "cvz", {"samples": 5, "max_radius": 4.0, "impl": "tensor"}),
     "bezier_scatter": ("bezier_scatter", "czpn", {"samples": 5, "fill": "color"}),
-    "bezier_scatter fused=False": ("bezier_scatter", "czpn", {"samples": 5, "fill": "color", "fused": False}),
+    "bezier_scatter impl='tensor'": ("bezier_scatter", "czpn", {"samples": 5, "fill": "color", "impl": "tensor"}),
     "warp_blend iterations=1": ("warp_blend", "cv", {"iterations": 1}),
     "warp_blend iterations=2": ("warp_blend", "cv", {"iterations": 2}),
     "warp_blend iterations=3": ("warp_blend", "cv", {"iterations": 3}),
@@ -344,7 +344,7 @@ def main() -> None:
         "PyTorch: `torch.compile(dynamic=False)`, default backend (inductor), each case in its own process with an empty "
         "Inductor cache, compile time = the first forward+backward, graph breaks as Dynamo counts them. The ops with a "
         "fused CPU kernel on their default (one custom operator in the graph, forward and backward) and with "
-        "`fused=False` (the tensor ops, traced tap by tap: what their default compiled to before the kernels were "
+        "`impl='tensor'` (the tensor ops, traced tap by tap: what their default compiled to before the kernels were "
         "operators). JAX: the same gradient eager against `jax.jit`, `jax.vmap` (batch of 2) and `jax.checkpoint`."
     )
     lines = ["## Compiled against eager", "", header, "", HEADER, "|---|---:|---|---:|---:|---:|---:|---:|---:|---|"]

@@ -38,11 +38,11 @@ METHODS = [
     ("gather S=15", "gather_blur", dict(samples=15), "v"),
     ("gather S=15 adaptive", "gather_blur", dict(samples=15, adaptive=True), "v"),
     ("gather S=5", "gather_blur", dict(samples=5), "v"),
-    ("gather S=5 pyramid", "gather_blur", dict(samples=5, pyramid=True), "v"),
+    ("gather S=5 pyramid", "gather_blur", dict(samples=5, sampling="pyramid"), "v"),
     ("reconstruct S=15", "reconstruct", dict(samples=15), "vd"),
     ("reconstruct S=15 adaptive", "reconstruct", dict(samples=15, adaptive=True), "vd"),
     ("reconstruct S=5", "reconstruct", dict(samples=5), "vd"),
-    ("reconstruct S=5 pyramid", "reconstruct", dict(samples=5, pyramid=True), "vd"),
+    ("reconstruct S=5 pyramid", "reconstruct", dict(samples=5, sampling="pyramid"), "vd"),
 ]
 
 

@@ -113,7 +113,7 @@ def test_shape_annotations_hold_at_run_time(backend):
     calls = _valid_calls(backend)
     assert sorted(calls) == PUBLIC
     for name, call in calls.items():
-        # The public ops are thin wrappers (diffblur.checks.lists_options) over the annotated function.
+        # Some public ops are wrapped (unknown keywords listed, JAX's forward-mode hint) over the annotated function.
         op = inspect.unwrap(getattr(backend.ops, name))
         call(op if inspect.isclass(op) else jaxtyped(typechecker=beartype)(op))
 

@@ -67,8 +67,8 @@ def _depth_ops(module, a, tensor_ops: bool):
         "bezier_scatter": lambda c, z, v: module.bezier_scatter(a(c), a(z), a(-v), a(v), shutter="box"),
     }
     if tensor_ops:
-        ops["bezier_scatter_tensor_ops"] = lambda c, z, v: module.bezier_scatter(a(c), a(z), a(-v), a(v), shutter="box", fused=False)
-        ops["reconstruct_tensor_ops"] = lambda c, z, v: module.reconstruct(a(c), a(v), a(z), shutter="box", fused=False)
+        ops["bezier_scatter_tensor_ops"] = lambda c, z, v: module.bezier_scatter(a(c), a(z), a(-v), a(v), shutter="box", impl="tensor")
+        ops["reconstruct_tensor_ops"] = lambda c, z, v: module.reconstruct(a(c), a(v), a(z), shutter="box", impl="tensor")
     return ops
 
 

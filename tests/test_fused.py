@@ -3,7 +3,7 @@
 The pure ops are the reference: the fused path must give the same image and the same gradients
 w.r.t. color, velocity and depth (float64: to rounding; float32: to float32 tolerance), for every
 option it accepts, eagerly, under jax.jit and under jax.vmap; it must refuse what it does not
-cover when asked for (fused=True) and quietly use the pure ops otherwise (fused=None).
+cover when asked for (impl="fused") and quietly use the pure ops otherwise (impl="auto").
 """
 
 from __future__ import annotations
@@ -57,20 +57,20 @@ def _scene(dtype=np.float64, seed=0, width=WIDTH):
     return [a.astype(dtype) for a in (color, velocity, depth, cotangent)]
 
 
-def _torch_run(arrays, options, fused):
+def _torch_run(arrays, options, impl):
     color, velocity, depth = (torch.tensor(a, requires_grad=True) for a in arrays[:3])
-    out = torch_impl.reconstruct(color, velocity, depth, fused=fused, **options)
+    out = torch_impl.reconstruct(color, velocity, depth, impl=impl, **options)
     grads = torch.autograd.grad(out, (color, velocity, depth), torch.tensor(arrays[3]))
     return out.detach().numpy(), [g.numpy() for g in grads]
 
 
-def _jax_run(arrays, options, fused, transform=lambda f: f):
+def _jax_run(arrays, options, impl, transform=lambda f: f):
     cotangent = jnp.asarray(arrays[3])
 
     def loss(color, velocity, depth):
-        return jnp.sum(jax_impl.reconstruct(color, velocity, depth, fused=fused, **options) * cotangent)
+        return jnp.sum(jax_impl.reconstruct(color, velocity, depth, impl=impl, **options) * cotangent)
 
-    out = transform(lambda c, v, d: jax_impl.reconstruct(c, v, d, fused=fused, **options))(*arrays[:3])
+    out = transform(lambda c, v, d: jax_impl.reconstruct(c, v, d, impl=impl, **options))(*arrays[:3])
     grads = transform(jax.grad(loss, argnums=(0, 1, 2)))(*arrays[:3])
     return np.asarray(out), [np.asarray(g) for g in grads]
 
@@ -87,13 +87,13 @@ def _assert_close(fused, pure, tolerance):
 @pytest.mark.parametrize("case", list(CASES))
 def test_torch_fused_matches_pure_float64(case):
     arrays = _scene()
-    _assert_close(_torch_run(arrays, CASES[case], True), _torch_run(arrays, CASES[case], False), FUSED_FLOAT64)
+    _assert_close(_torch_run(arrays, CASES[case], "fused"), _torch_run(arrays, CASES[case], "tensor"), FUSED_FLOAT64)
 
 
 @pytest.mark.parametrize("case", list(CASES))
 def test_jax_fused_matches_pure_float64_under_jit(case):
     arrays = _scene()
-    _assert_close(_jax_run(arrays, CASES[case], True, jax.jit), _jax_run(arrays, CASES[case], False), FUSED_FLOAT64)
+    _assert_close(_jax_run(arrays, CASES[case], True, jax.jit), _jax_run(arrays, CASES[case], "tensor"), FUSED_FLOAT64)
 
 
 @pytest.mark.parametrize("case", ["default", "own directions", "adaptive, early out", "adaptive, classes past a middle"])
@@ -101,23 +101,23 @@ def test_rows_wider_than_one_block(case):
     """The kernels run each row in blocks of at most _BLOCK pixels that end where the tiles'
     tap count changes: several blocks, a partial last one, adaptive classes side by side."""
     arrays = _scene(width=_BLOCK + 23)
-    _assert_close(_torch_run(arrays, CASES[case], True), _torch_run(arrays, CASES[case], False), FUSED_FLOAT64)
+    _assert_close(_torch_run(arrays, CASES[case], "fused"), _torch_run(arrays, CASES[case], "tensor"), FUSED_FLOAT64)
 
 
 def test_float32_both_frameworks_agree():
     arrays = _scene(np.float32, seed=1)
     options = CASES["default"]
-    torch_fused = _torch_run(arrays, options, True)
-    _assert_close(torch_fused, _torch_run(arrays, options, False), FUSED_FLOAT32)
-    _assert_close(_jax_run(arrays, options, True), torch_fused, FUSED_FLOAT32)
+    torch_fused = _torch_run(arrays, options, "fused")
+    _assert_close(torch_fused, _torch_run(arrays, options, "tensor"), FUSED_FLOAT32)
+    _assert_close(_jax_run(arrays, options, "fused"), torch_fused, FUSED_FLOAT32)
 
 
 def test_default_takes_the_fused_path_and_it_is_the_pure_result():
-    """fused=None on float32 CPU inputs runs the kernel (its autograd node), with the pure result."""
+    """impl="auto" on float32 CPU inputs runs the kernel (its autograd node), with the pure result."""
     color, velocity, depth, _ = (torch.tensor(a, requires_grad=True) for a in _scene(np.float32))
     out = torch_impl.reconstruct(color, velocity, depth, max_radius=4.0)
     assert "diffblur_reconstruct_forward" in type(out.grad_fn).__name__  # the custom operator's autograd node
-    pure = torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, fused=False)
+    pure = torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, impl="tensor")
     assert "diffblur" not in type(pure.grad_fn).__name__
     torch.testing.assert_close(out, pure, rtol=0, atol=2e-5)
 
@@ -127,16 +127,16 @@ def test_jitter_tensor_per_batch_item():
     jitter = np.random.default_rng(3).uniform(-0.5, 0.5, size=(BATCH, 1, HEIGHT, WIDTH))
     options = dict(max_radius=4.0, samples=7)
     torch_jitter = dict(options, jitter=torch.tensor(jitter))
-    _assert_close(_torch_run(arrays, torch_jitter, True), _torch_run(arrays, torch_jitter, False), FUSED_FLOAT64)
+    _assert_close(_torch_run(arrays, torch_jitter, "fused"), _torch_run(arrays, torch_jitter, "tensor"), FUSED_FLOAT64)
 
 
 def test_jax_vmap_over_a_leading_axis():
     arrays = _scene()
     stacked = [np.stack([a, a[::-1]]) for a in arrays]
     options = CASES["default"]
-    out = jax.vmap(lambda c, v, d: jax_impl.reconstruct(c, v, d, fused=True, **options))(*stacked[:3])
+    out = jax.vmap(lambda c, v, d: jax_impl.reconstruct(c, v, d, impl="fused", **options))(*stacked[:3])
     for i in range(2):
-        reference = jax_impl.reconstruct(*(s[i] for s in stacked[:3]), fused=False, **options)
+        reference = jax_impl.reconstruct(*(s[i] for s in stacked[:3]), impl="tensor", **options)
         np.testing.assert_allclose(np.asarray(out[i]), np.asarray(reference), rtol=0, atol=1e-11)
 
 
@@ -145,24 +145,24 @@ def test_jax_vmap_over_a_leading_axis():
     [
         (dict(sampling="nearest"), "sampling='nearest'"),
         (dict(shutter="gaussian"), "shutter 'gaussian'"),
-        (dict(pyramid=True), "pyramid=True"),
+        (dict(sampling="pyramid"), "sampling='pyramid'"),
     ],
 )
 def test_fused_true_refuses_what_it_does_not_cover_and_none_falls_back(options, words):
     color, velocity, depth, _ = (torch.tensor(a) for a in _scene(np.float32))
     with pytest.raises(ValueError, match=words.replace("(", r"\(")):
-        torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, fused=True, **options)
+        torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, impl="fused", **options)
     with pytest.raises(ValueError, match=words.replace("(", r"\(")):
-        jax_impl.reconstruct(*(jnp.asarray(a.numpy()) for a in (color, velocity, depth)), max_radius=4.0, fused=True, **options)
+        jax_impl.reconstruct(*(jnp.asarray(a.numpy()) for a in (color, velocity, depth)), max_radius=4.0, impl="fused", **options)
     fallback = torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, **options)
-    pure = torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, fused=False, **options)
+    pure = torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, impl="tensor", **options)
     torch.testing.assert_close(fallback, pure, rtol=0, atol=0)
 
 
 def test_half_precision_falls_back_to_the_tensor_ops():
     color, velocity, depth, _ = (torch.tensor(a).to(torch.float16) for a in _scene(np.float32))
     with pytest.raises(ValueError, match="float16"):
-        torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, fused=True)
+        torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, impl="fused")
     assert torch_impl.reconstruct(color, velocity, depth, max_radius=4.0).dtype == torch.float16
 
 
@@ -175,10 +175,10 @@ def test_torch_double_backward_is_refused_clearly():
 
 def test_jax_forward_mode_needs_fused_false():
     color, velocity, depth, _ = (jnp.asarray(a) for a in _scene())
-    f = lambda v: jax_impl.reconstruct(color, v, depth, max_radius=4.0, fused=True)  # noqa: E731
+    f = lambda v: jax_impl.reconstruct(color, v, depth, max_radius=4.0, impl="fused")  # noqa: E731
     with pytest.raises(TypeError, match="custom_vjp"):
         jax.jvp(f, (velocity,), (jnp.ones_like(velocity),))
-    pure = lambda v: jax_impl.reconstruct(color, v, depth, max_radius=4.0, fused=False)  # noqa: E731
+    pure = lambda v: jax_impl.reconstruct(color, v, depth, max_radius=4.0, impl="tensor")  # noqa: E731
     _, tangent = jax.jvp(pure, (velocity,), (jnp.ones_like(velocity),))
     assert np.isfinite(np.asarray(tangent)).all()
 
@@ -186,8 +186,8 @@ def test_jax_forward_mode_needs_fused_false():
 def test_batch_items_do_not_mix():
     arrays = _scene(np.float32)
     color, velocity, depth = (torch.tensor(a) for a in arrays[:3])
-    whole = torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, fused=True)
-    single = torch_impl.reconstruct(color[1:], velocity[1:], depth[1:], max_radius=4.0, fused=True)
+    whole = torch_impl.reconstruct(color, velocity, depth, max_radius=4.0, impl="fused")
+    single = torch_impl.reconstruct(color[1:], velocity[1:], depth[1:], max_radius=4.0, impl="fused")
     torch.testing.assert_close(whole[1:], single, rtol=0, atol=0)
 
 
@@ -196,8 +196,8 @@ def test_both_frameworks_run_one_compiled_kernel_per_dtype():
     ones (PyTorch's): both frameworks must reach the kernels with one type, or every kernel is
     compiled twice in a process that runs both."""
     arrays = _scene()
-    _torch_run(arrays, CASES["default"], fused=True)
-    _jax_run(arrays, CASES["default"], fused=True)
+    _torch_run(arrays, CASES["default"], impl="fused")
+    _jax_run(arrays, CASES["default"], impl="fused")
     for kernel in (reconstruct_kernel._reconstruct_forward, reconstruct_kernel._reconstruct_backward):
         float64_types = {signature for signature in kernel.signatures if str(signature[1].dtype) == "float64"}
         assert len(float64_types) == 1, float64_types
@@ -209,9 +209,9 @@ def test_torch_backward_computes_only_the_gradients_asked_for(wanted):
     the gradients asked for still match the tensor ops'."""
     arrays = _scene()
     results = []
-    for fused in (True, False):
+    for impl in ("fused", "tensor"):
         tensors = {name: torch.tensor(a, requires_grad=name in wanted) for name, a in zip(("color", "velocity", "depth"), arrays[:3])}
-        out = torch_impl.reconstruct(tensors["color"], tensors["velocity"], tensors["depth"], fused=fused, **CASES["default"])
+        out = torch_impl.reconstruct(tensors["color"], tensors["velocity"], tensors["depth"], impl=impl, **CASES["default"])
         grads = torch.autograd.grad(out, [tensors[name] for name in wanted], torch.tensor(arrays[3]))
         results.append([g.numpy() for g in grads])
     for name, fused_grad, pure_grad in zip(wanted, *results):
@@ -230,9 +230,9 @@ def test_jax_backward_computes_only_the_gradients_asked_for(wanted, monkeypatch)
     names = ("color", "velocity", "depth")
     argnums = tuple(names.index(name) for name in wanted)
     results = []
-    for fused in (True, False):
+    for impl in ("fused", "tensor"):
         cotangent = jnp.asarray(arrays[3])
-        loss = lambda c, v, d: jnp.sum(jax_impl.reconstruct(c, v, d, fused=fused, **CASES["default"]) * cotangent)  # noqa: E731
+        loss = lambda c, v, d: jnp.sum(jax_impl.reconstruct(c, v, d, impl=impl, **CASES["default"]) * cotangent)  # noqa: E731
         results.append(jax.jit(jax.grad(loss, argnums=argnums))(*(jnp.asarray(a) for a in arrays[:3])))
     assert asked == [tuple(name in wanted for name in names)]
     for name, fused_grad, pure_grad in zip(wanted, *results):

@@ -5,7 +5,7 @@ The pure ops are the reference: the fused path must give the same image and the 
 w.r.t. color, depth, the path's inputs (offsets or arc), the background, a shutter's parameter and
 a soft_z_extent tensor (float64: to rounding; float32: to float32 tolerance), for every path,
 normalisation and fill, eagerly, under jax.jit and under jax.vmap; it must refuse what it does not
-cover when asked for (fused=True) and quietly use the pure ops otherwise (fused=None).
+cover when asked for (impl="fused") and quietly use the pure ops otherwise (impl="auto").
 """
 
 from __future__ import annotations
@@ -64,34 +64,34 @@ def _differentiated(path: str, fill: str) -> tuple[str, ...]:
     return ("color", "depth", *PATHS[path][0], *(("background",) if fill == "background" else ()))
 
 
-def _call(ops, values: dict, path: str, options: dict, fused):
+def _call(ops, values: dict, path: str, options: dict, impl: str):
     """bezier_scatter on `values` (arrays of the backend), the path's fields and options."""
     fields, path_options = PATHS[path]
     offsets = (None, None) if path == "arc" else (values["offset_prev"], values["offset_next"])
     given = {name: values[name] for name in fields if name not in ("offset_prev", "offset_next")}
-    if "background" in values:
-        given["background"] = values["background"]
-    return ops.bezier_scatter(values["color"], values["depth"], *offsets, **given, **path_options, **options, fused=fused)
+    if "background" in values:  # the scene behind, as the fill
+        given["fill"] = values["background"]
+    return ops.bezier_scatter(values["color"], values["depth"], *offsets, **given, **path_options, **options, impl=impl)
 
 
 def _torch_values(arrays, path, fill="still"):
     return {name: torch.tensor(arrays[name]) for name in _differentiated(path, fill)}
 
 
-def _torch_run(arrays, path, options, fused, fill="still"):
+def _torch_run(arrays, path, options, impl, fill="still"):
     values = {name: value.requires_grad_() for name, value in _torch_values(arrays, path, fill).items()}
-    out = _call(torch_impl, values, path, dict(options, fill="still" if fill == "background" else fill), fused)
+    out = _call(torch_impl, values, path, dict(options, fill="still" if fill == "background" else fill), impl)
     grads = torch.autograd.grad(out, list(values.values()), torch.tensor(arrays["cotangent"]))
     return out.detach().numpy(), dict(zip(values, (g.numpy() for g in grads)))
 
 
-def _jax_run(arrays, path, options, fused, fill="still", transform=jax.jit):
+def _jax_run(arrays, path, options, impl, fill="still", transform=jax.jit):
     names = _differentiated(path, fill)
     fill_option = "still" if fill == "background" else fill
     cotangent = jnp.asarray(arrays["cotangent"])
 
     def run(*values):
-        return _call(jax_impl, dict(zip(names, values)), path, dict(options, fill=fill_option), fused)
+        return _call(jax_impl, dict(zip(names, values)), path, dict(options, fill=fill_option), impl)
 
     def loss(*values):
         return jnp.sum(run(*values) * cotangent)
@@ -120,7 +120,7 @@ def _assert_close(fused, pure, tolerance):
 def test_torch_fused_matches_pure_float64(path, normalization, fill):
     arrays = _scene()
     options = dict(samples=7, normalization=normalization)
-    _assert_close(_torch_run(arrays, path, options, True, fill), _torch_run(arrays, path, options, False, fill), FUSED_FLOAT64)
+    _assert_close(_torch_run(arrays, path, options, "fused", fill), _torch_run(arrays, path, options, "tensor", fill), FUSED_FLOAT64)
 
 
 @pytest.mark.parametrize("normalization", NORMALIZATIONS)
@@ -128,7 +128,7 @@ def test_torch_fused_matches_pure_float64(path, normalization, fill):
 def test_jax_fused_matches_pure_float64_under_jit(path, fill, normalization):
     arrays = _scene()
     options = dict(samples=7, normalization=normalization)
-    _assert_close(_jax_run(arrays, path, options, True, fill), _jax_run(arrays, path, options, False, fill), FUSED_FLOAT64)
+    _assert_close(_jax_run(arrays, path, options, "fused", fill), _jax_run(arrays, path, options, "tensor", fill), FUSED_FLOAT64)
 
 
 def test_automatic_point_count_and_shutters():
@@ -137,9 +137,9 @@ def test_automatic_point_count_and_shutters():
     4 s each), and the shutters' masses are the code both frameworks share."""
     arrays = _scene(seed=1)
     for options in (dict(), dict(shutter="box", normalization="paper"), dict(shutter="tent", samples=4)):
-        _assert_close(_torch_run(arrays, "degree 2", options, True), _torch_run(arrays, "degree 2", options, False), FUSED_FLOAT64)
+        _assert_close(_torch_run(arrays, "degree 2", options, "fused"), _torch_run(arrays, "degree 2", options, "tensor"), FUSED_FLOAT64)
     eager = lambda f: f  # noqa: E731
-    _assert_close(_jax_run(arrays, "degree 2", {}, True, transform=eager), _jax_run(arrays, "degree 2", {}, False, transform=eager), FUSED_FLOAT64)
+    _assert_close(_jax_run(arrays, "degree 2", {}, "fused", transform=eager), _jax_run(arrays, "degree 2", {}, "tensor", transform=eager), FUSED_FLOAT64)
 
 
 @pytest.mark.parametrize("normalization", NORMALIZATIONS)
@@ -147,12 +147,12 @@ def test_torch_shutter_parameter_and_extent_tensor_gradients(normalization):
     """A shutter's parameter (through the masses' gradient) and a soft_z_extent tensor."""
     arrays = _scene(seed=2)
     results = []
-    for fused in (True, False):
+    for impl in ("fused", "tensor"):
         values = {name: value.requires_grad_() for name, value in _torch_values(arrays, "degree 3").items()}
         parameters = {"slope": torch.tensor(0.6, dtype=torch.float64), "soft_z_extent": torch.tensor(0.07, dtype=torch.float64)}
         parameters = {name: value.requires_grad_() for name, value in parameters.items()}
         options = dict(samples=6, shutter=LinearRamp(parameters["slope"]), soft_z_extent=parameters["soft_z_extent"], normalization=normalization)
-        out = _call(torch_impl, values, "degree 3", options, fused)
+        out = _call(torch_impl, values, "degree 3", options, impl)
         inputs = {**values, **parameters}
         grads = torch.autograd.grad(out, list(inputs.values()), torch.tensor(arrays["cotangent"]))
         results.append((out.detach().numpy(), {name: g.numpy() for name, g in zip(inputs, grads)}))
@@ -164,13 +164,13 @@ def test_jax_shutter_parameter_and_extent_gradients_under_jit():
     values = {name: jnp.asarray(arrays[name]) for name in _differentiated("arc", "still")}
     cotangent = jnp.asarray(arrays["cotangent"])
 
-    def loss(slope, extent, fused):
+    def loss(slope, extent, impl):
         options = dict(samples=6, shutter=LinearRamp(slope), soft_z_extent=extent, normalization="paper")
-        return jnp.sum(_call(jax_impl, values, "arc", options, fused) * cotangent)
+        return jnp.sum(_call(jax_impl, values, "arc", options, impl) * cotangent)
 
     parameters = (jnp.asarray(0.6), jnp.asarray(0.07))
-    fused = jax.jit(jax.grad(lambda s, e: loss(s, e, True), argnums=(0, 1)))(*parameters)
-    pure = jax.grad(lambda s, e: loss(s, e, False), argnums=(0, 1))(*parameters)
+    fused = jax.jit(jax.grad(lambda s, e: loss(s, e, "fused"), argnums=(0, 1)))(*parameters)
+    pure = jax.grad(lambda s, e: loss(s, e, "tensor"), argnums=(0, 1))(*parameters)
     for f, p in zip(fused, pure):
         assert abs(float(p)) > 0
         np.testing.assert_allclose(float(f), float(p), rtol=1e-10)
@@ -185,18 +185,18 @@ def test_channel_counts_other_than_three(channels):
         arrays[name] = rng.random((BATCH, channels, HEIGHT, WIDTH))
     for path, fill in (("degree 2", "still"), ("arc", "background")):
         options = dict(samples=5, normalization="paper")
-        _assert_close(_torch_run(arrays, path, options, True, fill), _torch_run(arrays, path, options, False, fill), FUSED_FLOAT64)
-    _assert_close(_jax_run(arrays, "degree 1", dict(samples=5), True), _jax_run(arrays, "degree 1", dict(samples=5), False), FUSED_FLOAT64)
+        _assert_close(_torch_run(arrays, path, options, "fused", fill), _torch_run(arrays, path, options, "tensor", fill), FUSED_FLOAT64)
+    _assert_close(_jax_run(arrays, "degree 1", dict(samples=5), "fused"), _jax_run(arrays, "degree 1", dict(samples=5), "tensor"), FUSED_FLOAT64)
 
 
 @pytest.mark.parametrize("path", ["degree 2", "arc"])
 def test_float32_both_frameworks_agree(path):
     arrays = _scene(np.float32, seed=3)
     options = dict(samples=7)
-    torch_fused = _torch_run(arrays, path, options, True)
-    _assert_close(torch_fused, _torch_run(arrays, path, options, False), FUSED_FLOAT32)
-    _assert_close(_jax_run(arrays, path, options, True), _jax_run(arrays, path, options, False), FUSED_FLOAT32)
-    _assert_close(_jax_run(arrays, path, options, True), torch_fused, FUSED_FLOAT32)
+    torch_fused = _torch_run(arrays, path, options, "fused")
+    _assert_close(torch_fused, _torch_run(arrays, path, options, "tensor"), FUSED_FLOAT32)
+    _assert_close(_jax_run(arrays, path, options, "fused"), _jax_run(arrays, path, options, "tensor"), FUSED_FLOAT32)
+    _assert_close(_jax_run(arrays, path, options, "fused"), torch_fused, FUSED_FLOAT32)
     assert torch_fused[0].dtype == np.float32
 
 
@@ -216,16 +216,16 @@ def kernel_calls(monkeypatch):
 
 
 def test_default_takes_the_fused_path_in_both_frameworks(kernel_calls):
-    """fused=None on float32 CPU inputs runs the kernel, forward and backward, and fused=False not."""
+    """impl="auto" on float32 CPU inputs runs the kernel, forward and backward, and impl="tensor" not."""
     arrays = _scene(np.float32)
-    default = _torch_run(arrays, "degree 2", dict(samples=5), None)
+    default = _torch_run(arrays, "degree 2", dict(samples=5), "auto")
     # composite="layers" (the default) splats three times: with the depths, negated, without a test
     assert kernel_calls == {"forward": 3, "backward": 3}
-    _jax_run(arrays, "degree 2", dict(samples=5), None)
+    _jax_run(arrays, "degree 2", dict(samples=5), "auto")
     assert kernel_calls["forward"] > 3 and kernel_calls["backward"] == 6
     counted = dict(kernel_calls)
-    pure = _torch_run(arrays, "degree 2", dict(samples=5), False)
-    _jax_run(arrays, "degree 2", dict(samples=5), False)
+    pure = _torch_run(arrays, "degree 2", dict(samples=5), "tensor")
+    _jax_run(arrays, "degree 2", dict(samples=5), "tensor")
     assert kernel_calls == counted
     _assert_close(default, pure, FUSED_FLOAT32)
 
@@ -236,12 +236,12 @@ def test_jax_vmap_over_a_leading_axis():
     stacked = [np.stack([arrays[name], arrays[name][::-1]]) for name in names]
     cotangent = jnp.asarray(arrays["cotangent"])
 
-    def loss(*values, fused):
-        return jnp.sum(_call(jax_impl, dict(zip(names, values)), "degree 2", dict(samples=5), fused) * cotangent)
+    def loss(*values, impl):
+        return jnp.sum(_call(jax_impl, dict(zip(names, values)), "degree 2", dict(samples=5), impl) * cotangent)
 
-    grads = jax.vmap(jax.grad(lambda *v: loss(*v, fused=True), argnums=(0, 1, 2, 3)))(*stacked)
+    grads = jax.vmap(jax.grad(lambda *v: loss(*v, impl="fused"), argnums=(0, 1, 2, 3)))(*stacked)
     for i in range(2):
-        reference = jax.grad(lambda *v: loss(*v, fused=False), argnums=(0, 1, 2, 3))(*(s[i] for s in stacked))
+        reference = jax.grad(lambda *v: loss(*v, impl="tensor"), argnums=(0, 1, 2, 3))(*(s[i] for s in stacked))
         for g, r in zip(grads, reference):
             np.testing.assert_allclose(np.asarray(g[i]), np.asarray(r), rtol=0, atol=1e-10)
 
@@ -251,8 +251,8 @@ def test_batch_items_do_not_mix():
     of the sums, depend on the batch)."""
     arrays = _scene(np.float32)
     values = _torch_values(arrays, "degree 2")
-    whole = _call(torch_impl, values, "degree 2", dict(samples=5), True)
-    single = _call(torch_impl, {name: value[1:] for name, value in values.items()}, "degree 2", dict(samples=5), True)
+    whole = _call(torch_impl, values, "degree 2", dict(samples=5), "fused")
+    single = _call(torch_impl, {name: value[1:] for name, value in values.items()}, "degree 2", dict(samples=5), "fused")
     torch.testing.assert_close(whole[1:], single, rtol=0, atol=1e-6)
 
 
@@ -270,29 +270,29 @@ def test_fused_true_refuses_saying_why_and_none_falls_back(monkeypatch, cause):
     torch_values = _torch_values(arrays, "degree 2")
     jax_values = {name: jnp.asarray(arrays[name]) for name in torch_values}
     expected = {
-        "torch": _call(torch_impl, torch_values, "degree 2", dict(samples=5), False).numpy(),
-        "jax": np.asarray(_call(jax_impl, jax_values, "degree 2", dict(samples=5), False)),
+        "torch": _call(torch_impl, torch_values, "degree 2", dict(samples=5), "tensor").numpy(),
+        "jax": np.asarray(_call(jax_impl, jax_values, "degree 2", dict(samples=5), "tensor")),
     }
     torch_words, jax_words = _refusals(monkeypatch, cause)
     for framework, ops, values, words in (("torch", torch_impl, torch_values, torch_words), ("jax", jax_impl, jax_values, jax_words)):
         if words is None:
             continue
-        with pytest.raises(ValueError, match=f"bezier_scatter\\(fused=True\\) cannot run: {words}"):
-            _call(ops, values, "degree 2", dict(samples=5), True)
-        fallback = _call(ops, values, "degree 2", dict(samples=5), None)
+        with pytest.raises(ValueError, match=f"bezier_scatter\\(impl='fused'\\) cannot run: {words}"):
+            _call(ops, values, "degree 2", dict(samples=5), "fused")
+        fallback = _call(ops, values, "degree 2", dict(samples=5), "auto")
         np.testing.assert_array_equal(np.asarray(fallback.numpy() if framework == "torch" else fallback), expected[framework])
 
 
 def test_half_precision_falls_back_to_the_tensor_ops():
     values = {name: value.to(torch.float16) for name, value in _torch_values(_scene(np.float32), "degree 2").items()}
     with pytest.raises(ValueError, match="dtype float16"):
-        _call(torch_impl, values, "degree 2", dict(samples=5), True)
-    assert _call(torch_impl, values, "degree 2", dict(samples=5), None).dtype == torch.float16
+        _call(torch_impl, values, "degree 2", dict(samples=5), "fused")
+    assert _call(torch_impl, values, "degree 2", dict(samples=5), "auto").dtype == torch.float16
 
 
 def test_torch_double_backward_is_refused_clearly():
     values = {name: value.requires_grad_() for name, value in _torch_values(_scene(), "degree 2").items()}
-    out = _call(torch_impl, values, "degree 2", dict(samples=5), True)
+    out = _call(torch_impl, values, "degree 2", dict(samples=5), "fused")
     (grad,) = torch.autograd.grad(out.square().sum(), values["offset_next"], create_graph=True)
     with pytest.raises(RuntimeError, match="double backward"):
         grad.sum().backward()
@@ -302,19 +302,19 @@ def test_jax_forward_mode_needs_fused_false():
     arrays = _scene()
     values = {name: jnp.asarray(arrays[name]) for name in _differentiated("degree 2", "still")}
 
-    def along(offset, fused):
-        return _call(jax_impl, dict(values, offset_next=offset), "degree 2", dict(samples=5), fused)
+    def along(offset, impl):
+        return _call(jax_impl, dict(values, offset_next=offset), "degree 2", dict(samples=5), impl)
 
     tangent = jnp.ones_like(values["offset_next"])
-    with pytest.raises(TypeError, match=r"custom_vjp.*pass bezier_scatter\(\.\.\., fused=False\)"):
-        jax.jvp(lambda o: along(o, True), (values["offset_next"],), (tangent,))
-    _, pure = jax.jvp(lambda o: along(o, False), (values["offset_next"],), (tangent,))
+    with pytest.raises(TypeError, match=r"custom_vjp.*pass bezier_scatter\(\.\.\., impl='tensor'\)"):
+        jax.jvp(lambda o: along(o, "fused"), (values["offset_next"],), (tangent,))
+    _, pure = jax.jvp(lambda o: along(o, "tensor"), (values["offset_next"],), (tangent,))
     assert np.isfinite(np.asarray(pure)).all()
 
 
 def test_fitting_rotation_with_forward_mode_jacobians_takes_the_tensor_ops():
     """fitting's Levenberg-Marquardt with jac="fwd" (JAX jvp) runs the arc scatter: it must not meet
-    the custom_vjp, so the rotation model passes fused=False there."""
+    the custom_vjp, so the rotation model passes impl="tensor" there."""
     import fitting
     from fitting import scenes
 

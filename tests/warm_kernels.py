@@ -24,12 +24,12 @@ def warm(dtype_name: str) -> None:
 
     color, depth = leaf(1, 3, 10, 12), leaf(1, 1, 10, 12)
     velocity = leaf(1, 2, 10, 12, scale=4.0)
-    torch_impl.reconstruct(color, velocity, depth, fused=True).sum().backward()
-    torch_impl.gather_blur(color, velocity, fused=True).sum().backward()
-    torch_impl.gather_blur(color, velocity, adaptive=True, fused=True).sum().backward()
-    torch_impl.bezier_scatter(color, depth, -velocity, velocity, fused=True).sum().backward()
+    torch_impl.reconstruct(color, velocity, depth, impl="fused").sum().backward()
+    torch_impl.gather_blur(color, velocity, impl="fused").sum().backward()
+    torch_impl.gather_blur(color, velocity, adaptive=True, impl="fused").sum().backward()
+    torch_impl.bezier_scatter(color, depth, -velocity, velocity, impl="fused").sum().backward()
     # Another channel count than the splats' group of 3: they then run on padded (writable) copies.
-    torch_impl.bezier_scatter(color[:, :1], depth, -velocity, velocity, fused=True).sum().backward()
+    torch_impl.bezier_scatter(color[:, :1], depth, -velocity, velocity, impl="fused").sum().backward()
 
 
 if __name__ == "__main__":

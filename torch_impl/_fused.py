@@ -72,7 +72,7 @@ def _first_order_only(backward_op, op: str) -> None:
     first-order gradients only)."""
 
     def refuse(ctx, *grads):
-        raise RuntimeError(f"{op}'s fused kernel has first-order gradients only (no double backward); pass fused=False for higher orders")
+        raise RuntimeError(f"{op}'s fused kernel has first-order gradients only (no double backward); pass impl='tensor' for higher orders")
 
     backward_op.register_autograd(refuse)
 

@@ -85,8 +85,9 @@ def _scatter(with_background=False, **options):
             options_ = dict(options, offset_mid_prev=x["offset_mid_prev"])
         else:
             options_ = options
-        background = x["background"] if with_background else None
-        return ops.bezier_scatter(x["color"], x["depth"], x["offset_prev"], x["offset_next"], background=background, **options_)
+        if with_background:  # the scene behind as the fill
+            options_ = dict(options_, fill=x["background"])
+        return ops.bezier_scatter(x["color"], x["depth"], x["offset_prev"], x["offset_next"], **options_)
 
     return call
 
@@ -119,9 +120,9 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("reconstruct", "S=5, bilinear", _reconstruct(samples=5), _RV, _RV),
     Setting("reconstruct", "S=9, bilinear", _reconstruct(samples=9), _RV, _RV),
     Setting("reconstruct", "S=15, bilinear", _reconstruct(samples=15), _RV, _RV, quick=True),
-    Setting("reconstruct", "S=15, bilinear, tensor ops", _reconstruct(samples=15, fused=False), _RV, _RV, quick=True),
+    Setting("reconstruct", "S=15, bilinear, tensor ops", _reconstruct(samples=15, impl="tensor"), _RV, _RV, quick=True),
     Setting("reconstruct", "S=15, bilinear, adaptive", _reconstruct(samples=15, adaptive=True), _RV, _RV),
-    Setting("reconstruct", "S=5, bilinear, pyramid", _reconstruct(samples=5, pyramid=True), _RV, _RV),
+    Setting("reconstruct", "S=5, bilinear, pyramid", _reconstruct(samples=5, sampling="pyramid"), _RV, _RV),
     Setting("reconstruct", "S=31, bilinear", _reconstruct(samples=31), _RV, _RV),
     Setting("reconstruct", "S=15, nearest (paper)", _reconstruct(samples=15, sampling="nearest"), _RV, _RV),
     Setting("reconstruct", "S=15, bilinear, no jitter", _reconstruct(samples=15, jitter="none"), _RV, _RV),
@@ -129,15 +130,15 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("reconstruct", "S=15, bilinear, gaussian shutter", _reconstruct(samples=15, shutter="gaussian"), _RV, _RV),
     Setting("gather_blur", "S=5, bilinear", _gather(samples=5), _CV, _CV, quick=True),
     Setting("gather_blur", "S=15, bilinear", _gather(samples=15), _CV, _CV),
-    Setting("gather_blur", "S=15, bilinear, tensor ops", _gather(samples=15, fused=False), _CV, _CV),
+    Setting("gather_blur", "S=15, bilinear, tensor ops", _gather(samples=15, impl="tensor"), _CV, _CV),
     Setting("gather_blur", "S=15, bilinear, adaptive", _gather(samples=15, adaptive=True), _CV, _CV),
-    Setting("gather_blur", "S=5, bilinear, pyramid", _gather(samples=5, pyramid=True), _CV, _CV),
+    Setting("gather_blur", "S=5, bilinear, pyramid", _gather(samples=5, sampling="pyramid"), _CV, _CV),
     Setting("gather_blur", "S=31, bilinear", _gather(samples=31), _CV, _CV),
     Setting("gather_blur", "S=15, nearest", _gather(samples=15, sampling="nearest"), _CV, _CV),
     Setting("bezier_scatter", "degree 1, 16 points", _scatter(degree=1, samples=16, shutter="box"), _SC, _SC),
     Setting("bezier_scatter", "degree 2, 8 points", _scatter(degree=2, samples=8, shutter="box"), _SC, _SC, quick=True),
     Setting("bezier_scatter", "degree 2, 16 points", _scatter(degree=2, samples=16, shutter="box"), _SC, _SC),
-    Setting("bezier_scatter", "degree 2, 16 points, tensor ops", _scatter(degree=2, samples=16, shutter="box", fused=False), _SC, _SC),
+    Setting("bezier_scatter", "degree 2, 16 points, tensor ops", _scatter(degree=2, samples=16, shutter="box", impl="tensor"), _SC, _SC),
     Setting("bezier_scatter", "degree 2, 32 points", _scatter(degree=2, samples=32, shutter="box"), _SC, _SC),
     Setting("bezier_scatter", "degree 3, 16 points", _scatter(degree=3, samples=16, shutter="box"), _SC3, _SC3),
     Setting("bezier_scatter", "degree 2, 16 points, paper normalisation", _scatter(degree=2, samples=16, shutter="box", normalization="paper"), _SC, _SC),
@@ -164,7 +165,7 @@ SETTINGS: tuple[Setting, ...] = (
 TARGET_SETTINGS: tuple[Setting, ...] = (
     Setting("reconstruct", "S=15, bilinear", _reconstruct(samples=15), _RV, _RV),
     Setting("reconstruct", "S=31, bilinear", _reconstruct(samples=31), _RV, _RV),
-    Setting("reconstruct", "S=15, bilinear, tensor ops", _reconstruct(samples=15, fused=False), _RV, _RV),
+    Setting("reconstruct", "S=15, bilinear, tensor ops", _reconstruct(samples=15, impl="tensor"), _RV, _RV),
     Setting("kornia.motion_blur", "kernel 31, bilinear", _kornia(31), ("color", "angle"), ("color", "angle"), backends=("torch",)),
     Setting("bezier_scatter", "degree 2, 16 points", _scatter(degree=2, samples=16, shutter="box"), _SC, _SC),
 )

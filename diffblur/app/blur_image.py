@@ -209,7 +209,7 @@ def blur_image(inputs: BlurInputs, *, method: str = "reconstruct", backend: str 
     """Blur the photograph's buffers with `MotionBlur(method, **options)` of one backend; returns
     (1, C, H, W) linear float32."""
     from diffblur import checks
-    from diffblur.modules import METHOD_INPUTS
+    from diffblur.ops.module import METHOD_INPUTS
 
     checks.require_choice("backend", backend, BACKENDS)
     checks.require_choice("method", method, tuple(METHOD_INPUTS))

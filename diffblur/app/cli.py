@@ -157,7 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _add_blur_parser(commands) -> None:
     from diffblur.app.blur_image import BACKENDS
-    from diffblur.modules import METHOD_INPUTS
+    from diffblur.ops.module import METHOD_INPUTS
     from diffblur.shutters import SHUTTERS
 
     blur = commands.add_parser(

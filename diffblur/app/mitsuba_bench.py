@@ -37,7 +37,7 @@ METHODS: dict[str, Callable[..., Any]] = {
     "reconstruct, own directions": lambda o, x, s: o.reconstruct(x["color"], x["velocity"], x["depth"], shutter=s, directions="neighbor_and_own"),
     "bezier_scatter": lambda o, x, s: o.bezier_scatter(x["color"], x["depth"], x["offset_prev"], x["offset_next"], shutter=s),
     "bezier_scatter, composite sum": lambda o, x, s: o.bezier_scatter(x["color"], x["depth"], x["offset_prev"], x["offset_next"], shutter=s, composite="sum"),
-    "bezier_scatter, background": lambda o, x, s: o.bezier_scatter(x["color"], x["depth"], x["offset_prev"], x["offset_next"], shutter=s, background=x["background"]),
+    "bezier_scatter, background": lambda o, x, s: o.bezier_scatter(x["color"], x["depth"], x["offset_prev"], x["offset_next"], shutter=s, fill=x["background"]),
     "warp_blend": lambda o, x, s: o.warp_blend(x["color"], x["velocity"]),
     "accumulate_warps": lambda o, x, s: o.accumulate_warps(x["color"], x["velocity"], shutter=s),
     "accumulate_warps, curved": lambda o, x, s: o.accumulate_warps(x["color"], None, shutter=s, offset_prev=x["offset_prev"], offset_next=x["offset_next"]),

@@ -32,7 +32,6 @@ __all__ = [
     "read_only",
     "row_order",
     "scratch_for",
-    "use_fused",
 ]
 
 try:  # numba is a dependency; the guard keeps the pure ops usable where it cannot load.
@@ -82,17 +81,6 @@ _ROW_INTERLEAVE = 16
 def available() -> bool:
     """Whether the fused kernels can run (numba imports)."""
     return numba is not None
-
-
-def use_fused(op: str, fused: bool | None, reason: str | None) -> bool:
-    """Whether `op` runs on its fused kernel, given the user's `fused` and why the kernel cannot run
-    these inputs (`reason`, None when it can): None takes the kernel where it can, True insists
-    (ValueError naming the reason), False never takes it."""
-    if fused is False:
-        return False
-    if reason is not None and fused:
-        raise ValueError(f"{op}(fused=True) cannot run: {reason}")
-    return reason is None
 
 
 def read_only(*arrays: np.ndarray) -> list[np.ndarray]:

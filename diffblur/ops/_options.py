@@ -38,8 +38,10 @@ class OpOptions:
 
 
 def option_names(options: type[OpOptions]) -> list[str]:
-    """The keyword options a call takes, in the dataclass's order."""
-    return [f.name for f in dataclasses.fields(options) if f.init]
+    """The keyword options a call takes, in the dataclass's order. Read off `__dataclass_fields__`
+    (what `dataclasses.fields` reads), which torch.compile can trace: it does not trace
+    `dataclasses.fields` of a class."""
+    return [name for name, f in options.__dataclass_fields__.items() if f.init]
 
 
 def _option_parameters(options: type[OpOptions]) -> list[inspect.Parameter]:
@@ -103,5 +105,5 @@ def takes_kernel(op: str, impl: str, reason: str | None) -> bool:
     if impl == "tensor":
         return False
     if reason is not None and impl == "fused":
-        raise ValueError(f"{op}(impl='fused') cannot run on the fused kernel: {reason}; impl='auto' or 'tensor' runs the tensor ops")
+        raise ValueError(f"{op}(impl='fused') cannot run: {reason}; impl='auto' or 'tensor' runs the tensor ops")
     return reason is None

@@ -317,7 +317,7 @@ def moving_mask(kind: str, offsets: tuple, x: Any, y: Any) -> Any:
 _warned_without_still = False
 
 
-def warn_without_still(moving: np.ndarray, stacklevel: int) -> None:
+def warn_without_still(moving: np.ndarray) -> None:
     """Warn that fill="still" found no still pixel in an image of the batch (it then fills with what
     passes behind each pixel, weighed against its own colour, or as fill="color"); moving is the (B, H, W) `moving_mask` as NumPy. Once per process: a fit calls
     the scatter hundreds of times on the same images (`fitting`'s global model moves every pixel),
@@ -328,7 +328,7 @@ def warn_without_still(moving: np.ndarray, stacklevel: int) -> None:
     message = no_still_message(moving)
     if message is not None:
         _warned_without_still = True
-        warnings.warn(message, UserWarning, stacklevel=stacklevel + 1)
+        warnings.warn(message, UserWarning, stacklevel=checks.caller_stacklevel())
 
 
 def no_still_message(moving: np.ndarray) -> str | None:
@@ -582,8 +582,7 @@ def _warn_without_still(be: Any, kind: str, degree: int, given: dict, like: Any)
     if any(value is None for value in moved):
         return
     y, x = np.mgrid[0 : like.shape[2], 0 : like.shape[3]].astype(np.float64)
-    # stacklevel: this function, bezier_scatter, the backend's public function, the caller.
-    warn_without_still(moving_mask(kind, tuple(np.asarray(m, dtype=np.float64) for m in moved), x[None], y[None]), stacklevel=3)
+    warn_without_still(moving_mask(kind, tuple(np.asarray(m, dtype=np.float64) for m in moved), x[None], y[None]))
 
 
 def _splat(be: Any, paper: bool, kind: str, times: Any, masses: Any, terms: tuple, x: Any, y: Any, rows: Any, depth: Any, extent: Any, moving: Any) -> Any:

@@ -281,7 +281,7 @@ def bezier_scatter(
                         every_alpha[b, 0, row, column] += bilinear * weight
 
     if background is None and fill == "still":
-        warn_without_still(moving_pixels[:, 0], stacklevel=2)
+        warn_without_still(moving_pixels[:, 0])
     unknown_behind = background is None and fill == "still"
     if background is None:
         background = color if fill == "color" else still_fill(color, (~moving_pixels).astype(color.dtype))

@@ -66,7 +66,7 @@ def _with_slope_and_extent(rng):
 
 def _arc_call(op, options):
     def call(color, depth, arc_center, arc_angle, background, **extra):
-        return op(color, depth, None, None, arc_center=arc_center, arc_angle=arc_angle, background=background, **options, **extra)
+        return op(color, depth, None, None, arc_center=arc_center, arc_angle=arc_angle, fill=background, **options, **extra)
 
     return call
 

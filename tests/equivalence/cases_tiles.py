@@ -76,6 +76,6 @@ def _without_depth(rng):
 
 
 CASES += [
-    _case("gather_blur_pyramid", "gather_blur", _without_depth, ("color", "velocity"), samples=3, pyramid=True),
-    _case("reconstruct_pyramid", "reconstruct", _fast, ("velocity",), samples=5, max_radius=4.0, pyramid=True),
+    _case("gather_blur_pyramid", "gather_blur", _without_depth, ("color", "velocity"), samples=3, sampling="pyramid"),
+    _case("reconstruct_pyramid", "reconstruct", _fast, ("velocity",), samples=5, max_radius=4.0, sampling="pyramid"),
 ]

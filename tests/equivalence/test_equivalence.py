@@ -206,7 +206,7 @@ def test_jax_check_grads(case):
     # forward mode's), compiled. JAX derives reverse mode by transposing the forward mode's
     # linearisation, so one mode checks both; one case per op checks the two separately.
     def tensor_ops(*diff_values):
-        return case.jax_op(**fixed, **dict(zip(names, diff_values)), fused=False)
+        return case.jax_op(**fixed, **dict(zip(names, diff_values)), impl="tensor")
 
     modes = ("fwd", "rev") if case.name in FULL_JACOBIAN else ("rev",)
     check_grads(jax.jit(tensor_ops), values, order=1, modes=modes, eps=1e-6, atol=1e-6, rtol=1e-5)
@@ -217,13 +217,13 @@ def test_jax_check_grads(case):
 
 def _compiled_against_eager(cases: list[Case], backend: str) -> None:
     """Run `cases` in one function (one compilation), forward and backward, compiled and eager.
-    The ops with a fused CPU kernel run their tensor ops (fused=False): what torch.compile traces on
+    The ops with a fused CPU kernel run their tensor ops (impl="tensor"): what torch.compile traces on
     other devices. Their fused default, one custom operator in the graph, is checked in
     tests/torch/test_custom_ops.py."""
     prepared = {case.name: (case, case.inputs()) for case in cases}
 
     def run_all(tensors):
-        return {name: case.torch_op(**tensors[name], **({"fused": False} if name.startswith(FUSED_OPS) else {})) for name, (case, _) in prepared.items()}
+        return {name: case.torch_op(**tensors[name], **({"impl": "tensor"} if name.startswith(FUSED_OPS) else {})) for name, (case, _) in prepared.items()}
 
     torch._dynamo.reset()
     compiled = torch.compile(run_all, backend=backend, fullgraph=True, dynamic=False)

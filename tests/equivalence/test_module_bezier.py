@@ -57,9 +57,9 @@ def test_module_with_a_velocity_equals_the_functional_linear_path(backend, optio
 PATHS = {
     "offsets": ({"offset_prev": PREV, "offset_next": NEXT}, {}),
     "offsets-cubic": ({"offset_prev": PREV, "offset_next": NEXT, "offset_mid_prev": MID}, {"degree": 3}),
-    "offsets-background": ({"offset_prev": PREV, "offset_next": NEXT, "background": BACKGROUND}, {"shutter": "tent"}),
+    "offsets-background": ({"offset_prev": PREV, "offset_next": NEXT, "fill": BACKGROUND}, {"shutter": "tent"}),
     "arc": ({"arc_center": CENTER, "arc_angle": ANGLE}, {"samples": 6}),
-    "arc-background-paper": ({"arc_center": CENTER, "arc_angle": ANGLE, "background": BACKGROUND}, {"normalization": "paper"}),
+    "arc-background-paper": ({"arc_center": CENTER, "arc_angle": ANGLE, "fill": BACKGROUND}, {"normalization": "paper"}),
 }
 
 
@@ -88,8 +88,8 @@ def test_paths_and_array_options_are_checked(backend):
         layer(color, velocity)
     with pytest.raises(ValueError, match=r"offset_next must be a \(B, 2, H, W\) array"):
         layer(color, None, depth, offset_prev=prev)
-    with pytest.raises(TypeError, match=r"background is an array input of the layer's call, not an option"):
-        backend.ops.MotionBlur("bezier", background=COLOR)
+    with pytest.raises(TypeError, match=r"an array fill \(the scene behind\) is an input of the layer's call, not an option"):
+        backend.ops.MotionBlur("bezier", fill=COLOR)
     with pytest.raises(TypeError, match=r"unknown option 'sampling'; valid options: degree, samples, max_samples"):
         backend.ops.MotionBlur("bezier", sampling="nearest")
     with pytest.raises(TypeError, match=r"MotionBlur\(method='gather'\) takes offset_prev only with method='bezier'"):

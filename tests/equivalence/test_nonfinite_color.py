@@ -29,7 +29,7 @@ CALLS = {
     "gather_blur": lambda o, a: o.gather_blur(a["color"], a["velocity"], samples=3),
     "reconstruct": lambda o, a: o.reconstruct(a["color"], a["velocity"], a["depth"], samples=3, max_radius=2.0),
     "bezier_scatter": lambda o, a: o.bezier_scatter(a["color"], a["depth"], -a["velocity"], a["velocity"], samples=3, fill="color"),
-    "bezier_scatter background": lambda o, a: o.bezier_scatter(a["color"], a["depth"], -a["velocity"], a["velocity"], samples=3, background=a["background"], fill="color"),
+    "bezier_scatter background": lambda o, a: o.bezier_scatter(a["color"], a["depth"], -a["velocity"], a["velocity"], samples=3, fill=a["background"]),
     "warp_blend": lambda o, a: o.warp_blend(a["color"], a["velocity"], iterations=1),
     "accumulate_warps": lambda o, a: o.accumulate_warps(a["color"], a["velocity"], instants=2),
     "MotionBlur": lambda o, a: o.MotionBlur("gather", samples=3)(a["color"], a["velocity"]),
@@ -40,7 +40,8 @@ CALLS = {
 @pytest.mark.parametrize("op", list(CALLS))
 def test_nonfinite_color_is_refused_naming_the_argument(backend, op, bad):
     name = "background" if op.endswith("background") else "color"
-    with pytest.raises(ValueError, match=rf"^{name} must be finite everywhere, got NaN or infinity$"):
+    shown = "fill" if name == "background" else name  # the scene behind is bezier_scatter's fill
+    with pytest.raises(ValueError, match=rf"^{shown} must be finite everywhere, got NaN or infinity$"):
         CALLS[op](backend.ops, inputs(backend, bad, name))
 
 
@@ -53,7 +54,8 @@ def test_nonfinite_color_is_refused_under_jax_jit(op):
 
     name = "background" if op.endswith("background") else "color"
     arrays = inputs(JaxBackend, np.nan, name)
-    with pytest.raises(Exception, match=rf"{name} must be finite everywhere, got NaN or infinity"):
+    shown = "fill" if name == "background" else name
+    with pytest.raises(Exception, match=rf"{shown} must be finite everywhere, got NaN or infinity"):
         jax.block_until_ready(jax.jit(lambda a: CALLS[op](jax_impl, a))(arrays))
 
 
@@ -61,14 +63,14 @@ def test_torch_check_screens_by_a_sum_without_refusing_huge_finite_values():
     """The PyTorch check sums first; finite values whose sum overflows still pass, bad ones fail."""
     import torch
 
-    from torch_impl import _checks
+    from torch_impl._backend import TORCH
 
     for dtype in (torch.float32, torch.float64):  # (half sums in float32, which they cannot overflow)
         huge = torch.full((1, 3, 40, 40), torch.finfo(dtype).max / 2, dtype=dtype)
         assert not torch.isfinite(huge.sum(dtype=torch.promote_types(dtype, torch.float32)))  # the screen overflows
-        _checks.finite_values("color", huge)
+        TORCH.check_finite("color", huge)
         for bad in (np.nan, np.inf):
             spoiled = huge.clone()
             spoiled[0, 2, 39, 39] = bad
             with pytest.raises(ValueError, match="color must be finite everywhere"):
-                _checks.finite_values("color", spoiled)
+                TORCH.check_finite("color", spoiled)

@@ -92,7 +92,7 @@ BAD_CALLS = [
     ("offset 3 channels", lambda b: _call(b, prev=(1, 3, 6, 7)), ValueError, r"offset_prev must have 2 channel\(s\)"),
     ("offset size", lambda b: _call(b, nxt=(1, 2, 5, 7)), ValueError, r"offset_next must match color in batch and size \(B=1, H=6, W=7\), got shape \(1, 2, 5, 7\)"),
     ("depth batch", lambda b: _call(b, depth=(2, 1, 6, 7)), ValueError, r"depth must match color in batch and size"),
-    ("background shape", lambda b: _call(b, background=_ones(b, (1, 3, 6, 7))), ValueError, r"background must have the shape of color \(1, 2, 6, 7\)"),
+    ("background shape", lambda b: _call(b, fill=_ones(b, (1, 3, 6, 7))), ValueError, r"fill must have the shape of color \(1, 2, 6, 7\)"),
     ("depth dtype", lambda b: _call(b, values={"depth": np.ones((1, 1, 6, 7), np.float32)}), TypeError, r"depth must have the dtype of color"),
     ("integer color", lambda b: b.ops.bezier_scatter(b.array(np.ones((1, 2, 6, 7)), "int32"), *(_ones(b, s) for s in ((1, 1, 6, 7), (1, 2, 6, 7), (1, 2, 6, 7)))), TypeError, r"color must have a floating dtype"),
     ("degree 4", lambda b: _call(b, degree=4), ValueError, r"degree must be one of 1, 2, 3; got 4"),
@@ -157,7 +157,7 @@ def test_one_moving_pixel_by_hand(implementation):
     # fill="still" (the default): the moving pixel shows the still pixels' estimate, 0 here, for its
     # uncovered half, as with a (black) background
     np.testing.assert_allclose(run(), [0.0, 0.25, 0.5, 0.25, 0.0], atol=1e-15)
-    np.testing.assert_allclose(run(background=np.zeros_like(color), fill="color"), [0.0, 0.25, 0.5, 0.25, 0.0], atol=1e-15)
+    np.testing.assert_allclose(run(fill=np.zeros_like(color)), [0.0, 0.25, 0.5, 0.25, 0.0], atol=1e-15)
     # paper: weight 2 m |p'| = 2 * 1/2 * 1 = 1 per point, so A = alpha = [0, 1/2, 1, 1/2, 0]; w_b = 5
     np.testing.assert_allclose(run(normalization="paper", fill="color"), [0.0, 0.5 / 5.5, 1.0, 0.5 / 5.5, 0.0], atol=1e-15)
     np.testing.assert_allclose(run(normalization="paper", background_weight=1.0, fill="color"), [0.0, 0.5 / 1.5, 1.0, 0.5 / 1.5, 0.0], atol=1e-15)
@@ -259,7 +259,7 @@ def test_the_middle_point_sits_at_p0(implementation):
     single = np.zeros((1, 1, 9, 9))
     single[0, 0, 4, 4] = 1.0
     p, n = vectors(9, 9, **{"4,4": (-3.0, 1.0)}), vectors(9, 9, **{"4,4": (2.0, 2.0)})
-    out = scatter(implementation, single, np.ones_like(single), p, n, degree=1, samples=1, background=np.zeros_like(single))
+    out = scatter(implementation, single, np.ones_like(single), p, n, degree=1, samples=1, fill=np.zeros_like(single))
     expected = np.zeros((9, 9))
     splat(expected, 4 - 0.5, 4 + 1.5, 1.0)
     np.testing.assert_allclose(out[0, 0], expected, atol=1e-12)
@@ -275,7 +275,7 @@ def test_points_lie_on_the_polynomial_through_the_given_positions(implementation
     color = np.zeros((1, 1, 24, 24))
     color[0, 0, 12, 12] = 1.0
     prev, nxt = vectors(24, 24, **{"12,12": given[-1.0]}), vectors(24, 24, **{"12,12": given[1.0]})
-    options = dict(degree=degree, samples=3, shutter="box", background=np.zeros_like(color))
+    options = dict(degree=degree, samples=3, shutter="box", fill=np.zeros_like(color))
     times = [-1.0, 0.0, 1.0]
     if degree == 3:
         options["offset_mid_prev"] = vectors(24, 24, **{"12,12": given[-0.5]})
@@ -293,7 +293,7 @@ def test_a_bright_pixel_deposits_its_energy_along_the_curve_not_the_chord(backen
     color = np.zeros((1, 1, 24, 32))
     color[0, 0, 6, 16] = 1.0
     prev, nxt = vectors(24, 32, **{"6,16": (-10.0, 8.0)}), vectors(24, 32, **{"6,16": (10.0, 8.0)})
-    options = dict(shutter="box", background=np.zeros_like(color), max_samples=64)
+    options = dict(shutter="box", fill=np.zeros_like(color), max_samples=64)
     curved = scatter(backend.name, color, np.ones_like(color), prev, nxt, **options)[0, 0]
     straight = scatter(backend.name, color, np.ones_like(color), prev, nxt, degree=1, **options)[0, 0]
     rows, columns = np.mgrid[0:24, 0:32].astype(float)
@@ -399,30 +399,31 @@ def test_extremes_are_finite(backend, scale, extent):
 def test_checkpointed_chunks_match_plain_autodiff(backend, monkeypatch):
     """With a chunk budget of one point (five chunks), each chunk is recomputed in the backward
     (activation checkpointing); outputs and gradients equal those of a single chunk."""
-    module = torch_impl._scatter if backend.name == "torch" else jax_impl._scatter
+    from diffblur.ops import scatter
+
     rng = np.random.default_rng(37)
     arrays = [rng.random((1, 2, 7, 5)), rng.uniform(1, 2, (1, 1, 7, 5)), rng.normal(size=(1, 2, 7, 5)), rng.normal(size=(1, 2, 7, 5))]
     # The chunks are the tensor ops' (the fused kernel needs none).
-    fn = lambda *a: backend.ops.bezier_scatter(*a, samples=5, soft_z_extent=0.5, fused=False) ** 2  # noqa: E731
+    fn = lambda *a: backend.ops.bezier_scatter(*a, samples=5, soft_z_extent=0.5, impl="tensor") ** 2  # noqa: E731
     results = {}
     for budget in (35, 1 << 18):  # 35 pixels: one point per chunk
-        monkeypatch.setattr(module, "_CHUNK_PIXEL_POINTS", budget)
+        monkeypatch.setattr(scatter, "CHUNK_PIXEL_POINTS", budget)
         if backend.name == "jax":
-            module._scatter.clear_cache()  # the chunking is decided when the jitted core is traced
+            jax_impl._backend.JAX.compiled(scatter._scatter, scatter.CORE_STATIC).clear_cache()  # the chunking is decided when the jitted core is traced
             import jax
 
             jaxpr = str(jax.make_jaxpr(jax.grad(lambda c: fn(c, *[backend.array(a) for a in arrays[1:]]).sum()))(backend.array(arrays[0])))
             assert ("checkpoint" in jaxpr or "remat" in jaxpr) == (budget == 35)
         else:
             calls = []
-            original = module.checkpoint
-            monkeypatch.setattr(module, "checkpoint", lambda *a, **k: calls.append(1) or original(*a, **k))
+            original = torch_impl._backend.checkpoint
+            monkeypatch.setattr(torch_impl._backend, "checkpoint", lambda *a, **k: calls.append(1) or original(*a, **k))
         out = backend.numpy(fn(*(backend.array(a) for a in arrays)))
         results[budget] = (out, backend.grad(fn, *(backend.array(a) for a in arrays)))
         if backend.name == "torch":
             assert (len(calls) > 0) == (budget == 35)
     if backend.name == "jax":
-        module._scatter.clear_cache()
+        jax_impl._backend.JAX.compiled(scatter._scatter, scatter.CORE_STATIC).clear_cache()
     np.testing.assert_allclose(results[35][0], results[1 << 18][0], rtol=1e-12, atol=1e-14)
     for chunked, whole in zip(results[35][1], results[1 << 18][1]):
         np.testing.assert_allclose(chunked, whole, rtol=1e-10, atol=1e-13)
@@ -452,7 +453,7 @@ def test_fit_recovers_an_angular_velocity(backend):
 
     def loss(angle):
         color, depth, c, mask, background, target = fixed
-        out = backend.ops.bezier_scatter(color, depth, None, None, arc_center=c, arc_angle=angle * mask, samples=16, shutter="box", background=background)
+        out = backend.ops.bezier_scatter(color, depth, None, None, arc_center=c, arc_angle=angle * mask, samples=16, shutter="box", fill=background)
         return ((out - target) ** 2).mean()
 
     angle, m, v = 0.25, 0.0, 0.0
@@ -478,7 +479,7 @@ def test_quadratic_scatter_beats_linear_scatter_and_gather_on_a_propeller(angle)
     results = {"gather": torch_impl.gather_blur(c, vel, samples=31, shutter="box").numpy()}
     for degree in (1, 2):
         results[degree] = torch_impl.bezier_scatter(c, d, p, n, degree=degree, shutter="box").numpy()
-        results[(degree, "background")] = torch_impl.bezier_scatter(c, d, p, n, degree=degree, shutter="box", background=bg).numpy()
+        results[(degree, "background")] = torch_impl.bezier_scatter(c, d, p, n, degree=degree, shutter="box", fill=bg).numpy()
     results[(2, "color")] = torch_impl.bezier_scatter(c, d, p, n, shutter="box", fill="color").numpy()
     score = {k: (psnr(v, scene.target), ssim(v, scene.target)) for k, v in results.items()}
     for quadratic, linear, margin in ((score[2], score[1], 2.0), (score[(2, "background")], score[(1, "background")], 5.0)):

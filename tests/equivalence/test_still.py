@@ -14,7 +14,8 @@ import jax
 import numpy as np
 import pytest
 
-from diffblur import _scatter_options, conventions, reference
+from diffblur import conventions, reference
+from diffblur.ops import scatter as scatter_options
 from diffblur.scenes import preset_scene, render_buffers
 from tests.backends import BACKENDS, backend_params
 
@@ -31,17 +32,17 @@ def propeller():
     return buffers, leftovers
 
 
-@pytest.mark.parametrize("fused", [False, None], ids=["tensor_ops", "fused_where_it_applies"])
+@pytest.mark.parametrize("impl", ["tensor", "auto"], ids=["tensor_ops", "fused_where_it_applies"])
 @pytest.mark.parametrize("backend", backend_params())
-def test_scatter_leftovers_give_the_result_of_exact_zeros(backend, fused, propeller):
+def test_scatter_leftovers_give_the_result_of_exact_zeros(backend, impl, propeller):
     buffers, (prev, nxt) = propeller
     a = backend.array
     still = (buffers.offset_prev == 0).all(1) & (buffers.offset_next == 0).all(1)
     assert 0.5 < still.mean() < 1.0  # the scene has still pixels, and moving ones
     with warnings.catch_warnings():
         warnings.simplefilter("error", UserWarning)  # still pixels are found: no warning
-        exact = backend.numpy(backend.ops.bezier_scatter(a(buffers.color), a(buffers.depth), a(buffers.offset_prev), a(buffers.offset_next), shutter="box", fused=fused))
-        rounded = backend.numpy(backend.ops.bezier_scatter(a(buffers.color), a(buffers.depth), a(prev), a(nxt), shutter="box", fused=fused))
+        exact = backend.numpy(backend.ops.bezier_scatter(a(buffers.color), a(buffers.depth), a(buffers.offset_prev), a(buffers.offset_next), shutter="box", impl=impl))
+        rounded = backend.numpy(backend.ops.bezier_scatter(a(buffers.color), a(buffers.depth), a(prev), a(nxt), shutter="box", impl=impl))
     # Counting the leftovers as motion loses the still pixels' fill: 0.33 of the contrast, 6 dB.
     np.testing.assert_allclose(rounded, exact, atol=1e-5)
 
@@ -79,7 +80,7 @@ def test_moving_mask_threshold_is_the_convention():
         for scale, changed in ((0.99, False), (1.01, True)):
             offset = np.zeros((1, 2, 1, 4))
             offset[0, 0, 0, 1] = limit * scale
-            out = backend.numpy(backend.ops.bezier_scatter(color, depth, backend.array(-offset), backend.array(offset), samples=3, shutter="box", fill="color", background=color * 0.0))
+            out = backend.numpy(backend.ops.bezier_scatter(color, depth, backend.array(-offset), backend.array(offset), samples=3, shutter="box", fill=color * 0.0))
             # A moving pixel shows the (black) background for the time its splats leave it uncovered.
             assert (abs(out[0, 0, 0, 1] - 1.0) > 1e-9) == changed, (backend.name, scale)
 
@@ -87,7 +88,7 @@ def test_moving_mask_threshold_is_the_convention():
 @pytest.fixture
 def fresh_warning(monkeypatch):
     """The no-still-pixel warning comes once per process: let this test see it again."""
-    monkeypatch.setattr(_scatter_options, "_warned_without_still", False)
+    monkeypatch.setattr(scatter_options, "_warned_without_still", False)
 
 
 @pytest.mark.parametrize("backend", backend_params())
@@ -103,7 +104,7 @@ def test_fill_still_warns_without_still_pixels(backend, fresh_warning):
         # Still pixels, fill="color", a background, or traced arrays: nothing to warn about.
         warnings.simplefilter("error", UserWarning)
         backend.ops.bezier_scatter(color, depth, -offset, offset, samples=3, fill="color")
-        backend.ops.bezier_scatter(color, depth, -offset, offset, samples=3, background=color)
+        backend.ops.bezier_scatter(color, depth, -offset, offset, samples=3, fill=color)
         backend.ops.bezier_scatter(color[:1], depth[:1], -offset[:1], offset[:1], samples=3)
         if backend.name == "jax":  # traced: no value to look at, no warning
             jax.jit(lambda c, d, o: backend.ops.bezier_scatter(c, d, -o, o, samples=3))(color, depth, offset)

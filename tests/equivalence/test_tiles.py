@@ -162,7 +162,7 @@ def test_pyramid_changes_nothing_where_taps_are_a_pixel_apart(backend, op):
     # The pyramid runs on the tensor ops: compare with them, not with the fused kernel (same value,
     # other rounding).
     # XLA may round the two graphs' sums differently (1 ulp with its older CPU emitters).
-    np.testing.assert_allclose(backend.numpy(run(*args, samples=15, pyramid=True)), backend.numpy(run(*args, samples=15, fused=False)), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(backend.numpy(run(*args, samples=15, sampling="pyramid")), backend.numpy(run(*args, samples=15, impl="tensor")), rtol=0, atol=1e-14)
 
 
 @pytest.mark.parametrize("op", ["gather_blur", "reconstruct"])
@@ -184,7 +184,7 @@ def test_pyramid_smooths_fewer_taps_than_pixels_travelled(backend, op):
     truth = backend.numpy(backend.ops.gather_blur(*arrays[:2], samples=63))[..., 16:48]
     np.testing.assert_allclose(truth, 0.5, atol=0.02)
     point = backend.numpy(run(*args, samples=5, **options))[..., 16:48]
-    pyramid = backend.numpy(run(*args, samples=5, pyramid=True, **options))[..., 16:48]
+    pyramid = backend.numpy(run(*args, samples=5, sampling="pyramid", **options))[..., 16:48]
     point_error, pyramid_error = np.abs(point - truth).max(), np.abs(pyramid - truth).max()
     assert point_error > 0.4, "the point taps should alias on this scene"
     assert pyramid_error < 0.05
@@ -197,15 +197,15 @@ def test_pyramid_gradient_reaches_the_velocity_through_the_level(backend):
     ramp = np.tile(np.linspace(0.0, 1.0, 32) ** 2, (1, 1, 8, 1))
     velocity = np.zeros((1, 2, 8, 32))
     velocity[:, 1] = 6.0  # vertical motion over an image constant along y: only the level blend changes it
-    grads = backend.grad(lambda c, v: backend.ops.gather_blur(c, v, samples=5, pyramid=True), backend.array(ramp), backend.array(velocity))
+    grads = backend.grad(lambda c, v: backend.ops.gather_blur(c, v, samples=5, sampling="pyramid"), backend.array(ramp), backend.array(velocity))
     assert np.all(np.isfinite(grads[1]))
     assert np.abs(grads[1][:, 1]).max() > 1e-4
 
 
 PYRAMID_BAD_CALLS = [
-    ("gather pyramid string", lambda o, b: _gather(o, b, pyramid="yes"), TypeError, r"pyramid must be True or False, got 'yes'"),
-    ("gather pyramid with adaptive", lambda o, b: _gather(o, b, pyramid=True, adaptive=True), ValueError, r"pyramid=True does not combine with adaptive sampling yet; got adaptive=True"),
-    ("reconstruct pyramid nearest", lambda o, b: _reconstruct(o, b, pyramid=True, sampling="nearest"), ValueError, r"pyramid=True reads the levels trilinearly and needs sampling='bilinear', got 'nearest'"),
+    ("gather unknown sampling", lambda o, b: _gather(o, b, sampling="pyramids"), ValueError, r"sampling must be one of 'bilinear', 'nearest', 'pyramid'"),
+    ("gather pyramid with adaptive", lambda o, b: _gather(o, b, sampling="pyramid", adaptive=True), ValueError, r"sampling='pyramid' does not combine with adaptive sampling yet; got adaptive=True"),
+    ("reconstruct pyramid with adaptive", lambda o, b: _reconstruct(o, b, sampling="pyramid", adaptive=True), ValueError, r"sampling='pyramid' does not combine with adaptive sampling yet; got adaptive=True"),
 ]
 
 

@@ -1,7 +1,7 @@
 """Run by tests/jax/test_sharding_fused.py in a subprocess whose XLA_FLAGS give 2 host devices.
 
-Each op that has a fused CPU kernel, with `fused=True` on the sharded batch (the error it raised),
-and `bezier_scatter` on its default path (`fused=None`), forward and gradient under `jax.jit`,
+Each op that has a fused CPU kernel, with `impl="fused"` on the sharded batch (the error it raised),
+and `bezier_scatter` on its default path (`impl="auto"`), forward and gradient under `jax.jit`,
 batch-sharded over the 2 devices and on one device (the other two ops' tensor paths are sharded in
 `_sharded_run`; their gradients' compile costs ~30 s of CPU). Prints one JSON line.
 """
@@ -45,7 +45,7 @@ def main() -> None:
             single, split = jax.tree.leaves(compiled(*on_one)), jax.tree.leaves(compiled(*on_mesh))
             result[kind] = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b)))) for a, b in zip(single, split))
         try:
-            jax.jit(lambda c, v, z: op(c, v, z, fused=True))(*on_mesh)
+            jax.jit(lambda c, v, z: op(c, v, z, impl="fused"))(*on_mesh)
             result["fused=True"] = None
         except ValueError as error:
             result["fused=True"] = str(error).splitlines()[0]

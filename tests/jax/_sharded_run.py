@@ -44,8 +44,8 @@ def layer_loss(exposure, color, velocity):
 OPS = {
     # The fused CPU kernels run on the host as one piece (pure_callback gathers the batch): sharded
     # runs take the tensor ops.
-    "reconstruct": lambda c, v, z: jax_impl.reconstruct(c, v, z, samples=5, max_radius=4.0, fused=False),
-    "bezier_scatter": lambda c, v, z: jax_impl.bezier_scatter(c, z, -v, v, samples=5, fused=False),
+    "reconstruct": lambda c, v, z: jax_impl.reconstruct(c, v, z, samples=5, max_radius=4.0, impl="tensor"),
+    "bezier_scatter": lambda c, v, z: jax_impl.bezier_scatter(c, z, -v, v, samples=5, impl="tensor"),
     # A training step's gradient: the layer's exposure, a mean over the sharded batch.
     "grad MotionBlur": lambda c, v, z: jax.grad(layer_loss)(jnp.asarray(0.8), c, v),
 }

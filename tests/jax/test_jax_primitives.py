@@ -97,7 +97,7 @@ def test_reconstruct_backward_memory_does_not_grow_with_taps():
 
 
 #: gather_blur's and bezier_scatter's forward-mode errors are checked in tests/test_fused_gather.py
-#: and tests/test_fused_scatter.py, with fused=False's forward mode.
+#: and tests/test_fused_scatter.py, with impl="tensor"'s forward mode.
 FORWARD_MODE_CALLS = {
     "reconstruct": lambda c, v, d: jax_impl.reconstruct(c, v, d, samples=3, max_radius=2.0),
     "MotionBlur": lambda c, v, d: jax_impl.MotionBlur("gather", samples=3)(c, v),
@@ -109,5 +109,5 @@ def test_forward_mode_through_a_fused_kernel_says_to_pass_fused_false(name):
     """The fused kernels are custom_vjps (reverse mode only): jacfwd names the way out."""
     rng = np.random.default_rng(3)
     color, velocity = jnp.asarray(rng.random((1, 2, 5, 6))), jnp.asarray(rng.normal(size=(1, 2, 5, 6)))
-    with pytest.raises(TypeError, match=r"reverse-mode gradient only .* pass \w+\(\.\.\., fused=False\)"):
+    with pytest.raises(TypeError, match=r"reverse-mode gradient only .* pass \w+\(\.\.\., impl='tensor'\)"):
         jax.jacfwd(lambda v: FORWARD_MODE_CALLS[name](color, v, jnp.ones((1, 1, 5, 6))).sum())(velocity)

@@ -1,5 +1,5 @@
 """The ops that have fused CPU kernels under a batch-sharded `jax.jit` over 2 host devices: on the
-default path `bezier_scatter`'s forward and gradient equal the one-device result, and `fused=True`
+default path `bezier_scatter`'s forward and gradient equal the one-device result, and `impl="fused"`
 is refused with a ValueError that says why, never a hang.
 
 Before issue 25 the default path took the fused kernel, whose host callback XLA runs on one device:
@@ -32,4 +32,4 @@ def test_fused_ops_sharded_equal_unsharded_or_refuse():
     assert report["ops"]["bezier_scatter"]["gradient"] <= 1e-12, report
     for name, result in report["ops"].items():
         refusal = result["fused=True"]
-        assert refusal is not None and refusal.startswith(f"{name}(fused=True) cannot run: JAX has 2 devices"), (name, refusal)
+        assert refusal is not None and refusal.startswith(f"{name}(impl='fused') cannot run: JAX has 2 devices"), (name, refusal)

@@ -272,7 +272,7 @@ OPS += [
     ),
     Op(
         "gather_blur-pyramid",
-        lambda o, x, e: o.gather_blur(x["color"], x["velocity"], samples=5, pyramid=True),
+        lambda o, x, e: o.gather_blur(x["color"], x["velocity"], samples=5, sampling="pyramid"),
         differentiable=("color", "velocity"),
         backends=("torch",),
         **{**BLUR, "shift": 4},  # the pyramid's 2x2 levels align with the image every 4 px

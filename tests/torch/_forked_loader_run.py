@@ -24,9 +24,9 @@ def sample(index: int) -> torch.Tensor:
     velocity = torch.tensor(rng.normal(size=(1, 2, 10, 11)) * 2.0)
     depth = torch.tensor(rng.uniform(1.0, 2.0, size=(1, 1, 10, 11)))
     return torch.cat([
-        torch_impl.reconstruct(color, velocity, depth, samples=5, fused=True),
-        torch_impl.gather_blur(color, velocity, samples=5, fused=True),
-        torch_impl.bezier_scatter(color, depth, -velocity, velocity, samples=5, fused=True),
+        torch_impl.reconstruct(color, velocity, depth, samples=5, impl="fused"),
+        torch_impl.gather_blur(color, velocity, samples=5, impl="fused"),
+        torch_impl.bezier_scatter(color, depth, -velocity, velocity, samples=5, impl="fused"),
     ])
 
 
@@ -42,7 +42,7 @@ def main() -> None:
     import numba
 
     leaf = torch.rand(1, 3, 8, 9, dtype=torch.float64, requires_grad=True)
-    torch_impl.reconstruct(leaf, leaf[:, :2], leaf[:, 2:] + 1.0, fused=True).sum().backward()
+    torch_impl.reconstruct(leaf, leaf[:, :2], leaf[:, 2:] + 1.0, impl="fused").sum().backward()
     parent = torch.stack([sample(index) for index in range(4)])
     loader = torch.utils.data.DataLoader(Blurred(), batch_size=4, num_workers=2, multiprocessing_context="fork", timeout=120)
     (workers,) = list(loader)

@@ -57,23 +57,24 @@ def test_warp_blend_chained_reads_stay_out_of_compiled_graphs(iterations):
 # The test skips the checks as torch.compile does and runs eagerly (an inductor compile is ~20 s of
 # CPU; `scripts/measure_compile_vs_eager.py` has the compiled case): eager aten raised there too.
 NAN_CALLS = {
-    "bilinear": lambda c, v: torch_impl.gather_blur(c, v, samples=3, fused=False),
-    "nearest": lambda c, v: torch_impl.gather_blur(c, v, samples=3, sampling="nearest", fused=False),
-    "adaptive": lambda c, v: torch_impl.gather_blur(c, v, samples=3, adaptive=True, fused=False),
-    "pyramid": lambda c, v: torch_impl.gather_blur(c, v, samples=3, pyramid=True, fused=False),
+    "bilinear": lambda c, v: torch_impl.gather_blur(c, v, samples=3, impl="tensor"),
+    "nearest": lambda c, v: torch_impl.gather_blur(c, v, samples=3, sampling="nearest", impl="tensor"),
+    "adaptive": lambda c, v: torch_impl.gather_blur(c, v, samples=3, adaptive=True, impl="tensor"),
+    "pyramid": lambda c, v: torch_impl.gather_blur(c, v, samples=3, sampling="pyramid", impl="tensor"),
     # The fused kernels run under torch.compile too (custom operators): they clamp their reads.
-    "fused": lambda c, v: torch_impl.gather_blur(c, v, samples=3, fused=True),
-    "fused adaptive": lambda c, v: torch_impl.gather_blur(c, v, samples=3, adaptive=True, fused=True),
-    "fused reconstruct": lambda c, v: torch_impl.reconstruct(c, v, torch.ones_like(c[:, :1]), samples=3, max_radius=1.0, fused=True),
-    "fused scatter": lambda c, v: torch_impl.bezier_scatter(c, torch.ones_like(c[:, :1]), -v, v, samples=3, fill="color", fused=True),
+    "fused": lambda c, v: torch_impl.gather_blur(c, v, samples=3, impl="fused"),
+    "fused adaptive": lambda c, v: torch_impl.gather_blur(c, v, samples=3, adaptive=True, impl="fused"),
+    "fused reconstruct": lambda c, v: torch_impl.reconstruct(c, v, torch.ones_like(c[:, :1]), samples=3, max_radius=1.0, impl="fused"),
+    "fused scatter": lambda c, v: torch_impl.bezier_scatter(c, torch.ones_like(c[:, :1]), -v, v, samples=3, fill="color", impl="fused"),
 }
 
 
 @pytest.mark.parametrize("op", list(NAN_CALLS))
 def test_nan_velocity_with_the_checks_skipped_reads_inside_the_image(op, monkeypatch):
-    from torch_impl import _checks
+    from torch_impl._backend import TorchBackend
 
-    monkeypatch.setattr(_checks, "finite_values", lambda name, x: None)  # as under torch.compile on a GPU
+    skipped = staticmethod(lambda name, x, *, carry=None: x if carry is None else carry)
+    monkeypatch.setattr(TorchBackend, "check_finite", skipped)  # as under torch.compile on a GPU
     color = torch.rand(1, 3, 16, 17, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
     velocity = torch.ones(1, 2, 16, 17, dtype=torch.float64)
     velocity[0, 0, 5, 6] = float("nan")  # x only: with both, the wrapped index of NaN rows and columns happened to be 0
@@ -86,8 +87,8 @@ def test_nan_velocity_with_the_checks_skipped_reads_inside_the_image(op, monkeyp
 # RuntimeError with the eager message, also with fullgraph=True. aot_eager traces as inductor does
 # (dynamo, then AOTAutograd) without inductor's compile.
 COMPILED_BAD_CALLS = {
-    "gather NaN velocity": (lambda c, v, z: torch_impl.gather_blur(c, v * float("nan"), samples=3, fused=False), "velocity must be finite everywhere"),
-    "fused gather NaN velocity": (lambda c, v, z: torch_impl.gather_blur(c, v * float("nan"), samples=3, fused=True), "velocity must be finite everywhere"),
+    "gather NaN velocity": (lambda c, v, z: torch_impl.gather_blur(c, v * float("nan"), samples=3, impl="tensor"), "velocity must be finite everywhere"),
+    "fused gather NaN velocity": (lambda c, v, z: torch_impl.gather_blur(c, v * float("nan"), samples=3, impl="fused"), "velocity must be finite everywhere"),
     "reconstruct zero depth": (lambda c, v, z: torch_impl.reconstruct(c, v, z * 0.0, samples=3, max_radius=2.0), "depth must be > 0 everywhere"),
     "scatter NaN colour": (lambda c, v, z: torch_impl.bezier_scatter(c * float("nan"), z, -v, v, samples=3), "color must be finite everywhere"),
 }

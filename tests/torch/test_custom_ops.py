@@ -60,7 +60,7 @@ OPS = {
 def _forward_arguments(op: str, color, velocity, depth):
     """The forward operator's arguments as the op builds them (the tensors the kernel takes)."""
     if op == "reconstruct":
-        from torch_impl._primitives import neighbor_max, tile_max
+        from torch_impl import neighbor_max, tile_max
 
         neighbors = neighbor_max(tile_max(velocity, 3))
         counts = torch.full((SHAPE[0], 2, 3), 5, dtype=torch.int32)

@@ -39,12 +39,13 @@ def test_dtype_and_device_are_kept(dtype, device):
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="checks the CPU fallback message only when no GPU is present")
 def test_mismatched_devices_would_be_named():
-    from torch_impl import _checks
+    from diffblur import checks
+    from torch_impl._backend import TORCH
 
     a = torch.zeros(3)
     b = torch.zeros(3, device="meta")
     with pytest.raises(ValueError, match=r"z_b must be on the device of z_a \(cpu\), got meta"):
-        _checks.same_dtype_and_device("z_b", b, "z_a", a)
+        checks.same_dtype_and_device(TORCH, "z_b", b, "z_a", a)
 
 
 def test_non_contiguous_and_channels_last_inputs_give_the_same_result():
