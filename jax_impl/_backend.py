@@ -20,6 +20,7 @@ import numpy as np
 from jax import Array
 
 from diffblur import checks, reference
+from diffblur.ops.backend import Backend
 
 from ._runtime_error import raise_if
 
@@ -40,14 +41,7 @@ def _noise_jitter(height: int, width: int, dtype: Any) -> Array:
         return jnp.asarray(reference.noise_jitter(height, width).astype(dtype)).reshape(1, 1, height, width)
 
 
-class JaxBackend:
-    name = "jax"
-    xp = jnp
-    half = (jnp.float16, jnp.bfloat16)
-    compiler = "jax.jit"
-    integer = jnp.int32
-    array_word = "array"
-    array_type_name = "jax.Array"
+class JaxBackend(Backend):
 
     # -- argument facts and value checks ------------------------------------------------------------
 
@@ -122,6 +116,10 @@ class JaxBackend:
         """Integer positions (for indexing) from floats already rounded."""
         return x.astype(jnp.int32)
 
+    @staticmethod
+    def argmax(x: Array, axis: int) -> Array:
+        return jnp.argmax(x, axis=axis, keepdims=True)
+
     stop_gradient = staticmethod(jax.lax.stop_gradient)
 
     @staticmethod
@@ -160,13 +158,7 @@ class JaxBackend:
         return jnp.pad(x, widths, constant_values=value)
 
     @staticmethod
-    def argmax(x: Array, axis: int) -> Array:
-        return jnp.argmax(x, axis=axis, keepdims=True)
-
-    @staticmethod
     def take_along(x: Array, index: Array, axis: int) -> Array:
-        """x's values at integer `index` along `axis`, the other axes broadcast (NumPy's
-        take_along_axis)."""
         return jnp.take_along_axis(x, index, axis=axis)
 
     @staticmethod
@@ -297,29 +289,10 @@ class JaxBackend:
 
     # -- the fused CPU kernels (`jax_impl._fused`, `jax_impl._fused_scatter`) --------------------------
 
-    @staticmethod
-    def kernel_reason(op: str, color: Array, o: Any, *arrays: Array) -> str | None:
-        """Why `op`'s fused kernel cannot run these inputs and options, or None when it can."""
+    def bindings(self) -> tuple[Any, Any]:
         from jax_impl import _fused, _fused_scatter
 
-        if op == "gather_blur":
-            return _fused.gather_unfused_reason(color, o.sampling)
-        if op == "bezier_scatter":
-            return _fused_scatter.unfused_reason(color)
-        return _fused.unfused_reason(o, color)
-
-    @staticmethod
-    def run_kernel(op: str, *arrays: Array) -> Array:
-        """`op` on its fused kernel: the arrays, then the options."""
-        from diffblur.ops.sampling import position_dtype
-        from jax_impl import _fused, _fused_scatter
-
-        if op == "bezier_scatter":  # color, depth, kind, terms, masses, extent, moving, paper
-            return _fused_scatter.fused_splat(*arrays)
-        *arrays, o = arrays
-        if op == "gather_blur":
-            return _fused.fused_gather(*arrays, o.window, o.samples, o.classes, position_dtype(JAX, arrays[0].dtype))
-        return _fused.fused_reconstruct(*arrays, o)
+        return _fused, _fused_scatter
 
 
-JAX = JaxBackend()
+JAX = JaxBackend("jax", jnp, half=(jnp.float16, jnp.bfloat16), compiler="jax.jit", integer=jnp.int32, array_word="array", array_type_name="jax.Array")

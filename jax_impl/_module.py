@@ -7,7 +7,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from diffblur import checks
-from diffblur.ops.module import blur, check_method_options, learnable_shutter_fields, shutter_option
+from diffblur.ops.module import CALL_DOC, blur, check_method_options, layer_doc, learnable_shutter_fields, shutter_option
 from jax_impl._backend import JAX
 from jax_impl._gather import gather_blur
 from jax_impl._reconstruct import reconstruct
@@ -18,31 +18,14 @@ _OPS = {"reconstruct": reconstruct, "gather": gather_blur, "bezier": bezier_scat
 
 
 class MotionBlur(eqx.Module):
-    """Motion blur as a layer, optionally with a learnable exposure (a scale on the velocity) and
-    shutter shape.
-
-    Args:
-        method: "reconstruct" (seed 000, needs velocity and depth), "gather" (seed 001) or "bezier"
-            (seed 003's curve scatter, `bezier_scatter`: needs depth and a path, see `__call__`).
-            "warp_blend" (seed 002, `warp_blend`) and "accumulate" (`accumulate_warps`, the
-            accumulation baseline) read velocity only.
-        exposure: initial exposure, the factor applied to the velocity (1 = as given); with "bezier",
-            to the offsets (the path scaled about each pixel) or to the arc's angle.
-        learn_exposure: hold the exposure as an array field (trainable under eqx.filter); else a
-            static float, the default. Off by default: where a network predicts the velocity, a
-            learnable exposure is a second scale on it, which the optimiser can trade against the
-            network's output; turn it on to fit an exposure to a known motion.
-        learn_shutter: hold the shutter window's shape parameters (e.g. Tukey's taper) as array
-            fields too; the window comes from the `shutter` option.
-        **options: the method's keyword options (samples, sampling, shutter, ...), checked by name.
-
+    __doc__ = layer_doc("""
     >>> import jax, jax.numpy as jnp
     >>> layer = MotionBlur("gather", samples=5)
     >>> color = jax.random.uniform(jax.random.key(0), (2, 3, 16, 16))
     >>> velocity = jax.random.normal(jax.random.key(1), (2, 2, 16, 16))
     >>> layer(color, velocity).shape
     (2, 3, 16, 16)
-    """
+""")
 
     exposure: Array | float
     shutter_shape: dict[str, Array]
@@ -61,24 +44,11 @@ class MotionBlur(eqx.Module):
             self.shutter_shape = {k: jnp.asarray(v) for k, v in learnable_shutter_fields(shutter_option(op, checked)).items()}
 
     def __call__(
-        self,
-        color: Float[Array, "b c h w"],
-        velocity: Float[Array, "b 2 h w"] | None = None,
-        depth: Float[Array, "b 1 h w"] | None = None,
-        *,
-        offset_prev: Float[Array, "b 2 h w"] | None = None,
-        offset_next: Float[Array, "b 2 h w"] | None = None,
-        offset_mid_prev: Float[Array, "b 2 h w"] | None = None,
-        arc_center: Float[Array, "b 2 h w"] | None = None,
-        arc_angle: Float[Array, "b 1 h w"] | None = None,
-        fill: Float[Array, "b c h w"] | None = None,
+        self, color: Float[Array, "b c h w"], velocity: Float[Array, "b 2 h w"] | None = None, depth: Float[Array, "b 1 h w"] | None = None, *,
+        offset_prev: Float[Array, "b 2 h w"] | None = None, offset_next: Float[Array, "b 2 h w"] | None = None, offset_mid_prev: Float[Array, "b 2 h w"] | None = None,
+        arc_center: Float[Array, "b 2 h w"] | None = None, arc_angle: Float[Array, "b 1 h w"] | None = None, fill: Float[Array, "b c h w"] | None = None,
     ) -> Float[Array, "b c h w"]:
-        """Blur `color` (B, C, H, W) by `velocity` (B, 2, H, W) x exposure, with `depth` (B, 1, H, W)
-        where the method reads it.
-
-        "bezier" takes one path: a velocity V (the segment from X - V to X + V), or offset_prev and
-        offset_next (and offset_mid_prev with degree=3), or arc_center and arc_angle, as
-        `bezier_scatter` does; and optionally the scene behind the moving objects as `fill` (an array;
-        a fill of "still" or "color" is an option of the layer)."""
         paths = {"offset_prev": offset_prev, "offset_next": offset_next, "offset_mid_prev": offset_mid_prev, "arc_center": arc_center, "arc_angle": arc_angle}
         return blur(JAX, _OPS, self.method, dict(self.options), self.exposure, self.shutter_shape, color, velocity, depth, paths, fill)
+
+    __call__.__doc__ = CALL_DOC

@@ -47,28 +47,37 @@ def safe_length(vector: Float[Array, "b c h w"], *, axis: int = 1) -> Float[Arra
     return p.safe_length_op(JAX, vector, axis)
 
 
+@public(p.TILE_MAX_DOC, example="""
+    >>> import jax.numpy as jnp
+    >>> v = jnp.zeros((1, 2, 2, 4)).at[0, 0, 1, 1].set(3.0).at[0, 1, 0, 3].set(-1.0)
+    >>> tile_max(v, 2)[0].tolist()  # the longest vector of each 2 x 2 tile
+    [[[3.0, 0.0]], [[0.0, -1.0]]]""")
+def tile_max(velocity: Float[Array, "b 2 h w"], tile: int) -> Float[Array, "b 2 th tw"]:
+    return p.tile_max_op(JAX, velocity, tile)
+
+
+@public(p.NEIGHBOR_MAX_DOC, example="""
+    >>> import jax.numpy as jnp
+    >>> tiles = jnp.zeros((1, 2, 1, 4)).at[0, 0, 0, 0].set(2.0)
+    >>> neighbor_max(tiles)[0, 0].tolist()  # the longest of each tile's 3 x 3 neighbours
+    [[2.0, 2.0, 0.0, 0.0]]""")
+def neighbor_max(tile_velocity: Float[Array, "b 2 th tw"]) -> Float[Array, "b 2 th tw"]:
+    return p.neighbor_max_op(JAX, tile_velocity)
+
+
+@public(p.INTERLEAVED_GRADIENT_NOISE_DOC, example="""
+    >>> import jax.numpy as jnp
+    >>> noise = interleaved_gradient_noise(4, 6)
+    >>> noise.shape, bool(((noise >= 0) & (noise < 1)).all())
+    ((4, 6), True)""")
+def interleaved_gradient_noise(height: int, width: int, *, dtype: jnp.dtype | None = None, device: jax.Device | None = None) -> Float[Array, "h w"]:
+    return p.interleaved_gradient_noise_op(JAX, height, width, dtype=dtype, device=device)
+
+
 @public(p.VELOCITY_FROM_MOTION_DOC, example="""
     >>> import jax.numpy as jnp
     >>> d = jnp.array([[3.0, 0.2, 60.0], [4.0, 0.0, 80.0]]).reshape(1, 2, 1, 3)
     >>> velocity_from_motion(d, exposure=1.0, max_radius=20.0)[0, :, 0].T.tolist()
     [[1.5, 2.0], [0.5, 0.0], [12.0, 16.0]]""")
-def velocity_from_motion(
-    displacement: Float[Array, "b 2 h w"], *, exposure: float | Array = 1.0, max_radius: float = DEFAULT_MAX_RADIUS, min_radius: float = DEFAULT_MIN_RADIUS
-) -> Float[Array, "b 2 h w"]:
+def velocity_from_motion(displacement: Float[Array, "b 2 h w"], *, exposure: float | Array = 1.0, max_radius: float = DEFAULT_MAX_RADIUS, min_radius: float = DEFAULT_MIN_RADIUS) -> Float[Array, "b 2 h w"]:
     return p.velocity_from_motion_op(JAX, displacement, exposure=exposure, max_radius=max_radius, min_radius=min_radius)
-
-
-@public(p.TILE_MAX_DOC)
-def tile_max(velocity: Float[Array, "b 2 h w"], tile: int) -> Float[Array, "b 2 th tw"]:
-    return p.tile_max_op(JAX, velocity, tile)
-
-
-@public(p.NEIGHBOR_MAX_DOC)
-def neighbor_max(tile_velocity: Float[Array, "b 2 th tw"]) -> Float[Array, "b 2 th tw"]:
-    return p.neighbor_max_op(JAX, tile_velocity)
-
-
-@public(p.INTERLEAVED_GRADIENT_NOISE_DOC)
-def interleaved_gradient_noise(height: int, width: int, *, dtype: jnp.dtype | None = None, device: jax.Device | None = None) -> Float[Array, "h w"]:
-    return p.interleaved_gradient_noise_op(JAX, height, width, dtype=dtype, device=device)
-

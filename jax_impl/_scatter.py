@@ -25,16 +25,7 @@ EXAMPLE = """
 @public(scatter.DOC, scatter.ScatterOptions, example=EXAMPLE)
 @forward_mode_hint
 def bezier_scatter(
-    color: Float[Array, "b c h w"],
-    depth: Float[Array, "b 1 h w"],
-    offset_prev: Float[Array, "b 2 h w"] | None,
-    offset_next: Float[Array, "b 2 h w"] | None,
-    *,
-    offset_mid_prev: Float[Array, "b 2 h w"] | None = None,
-    arc_center: Float[Array, "b 2 h w"] | None = None,
-    arc_angle: Float[Array, "b 1 h w"] | None = None,
-    **options,
+    color: Float[Array, "b c h w"], depth: Float[Array, "b 1 h w"], offset_prev: Float[Array, "b 2 h w"] | None, offset_next: Float[Array, "b 2 h w"] | None, *,
+    offset_mid_prev: Float[Array, "b 2 h w"] | None = None, arc_center: Float[Array, "b 2 h w"] | None = None, arc_angle: Float[Array, "b 1 h w"] | None = None, **options,
 ) -> Float[Array, "b c h w"]:
-    return scatter.bezier_scatter(
-        JAX, color, depth, offset_prev, offset_next, offset_mid_prev=offset_mid_prev, arc_center=arc_center, arc_angle=arc_angle, **options
-    )
+    return scatter.bezier_scatter(JAX, color, depth, offset_prev, offset_next, offset_mid_prev=offset_mid_prev, arc_center=arc_center, arc_angle=arc_angle, **options)

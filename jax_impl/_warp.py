@@ -17,6 +17,14 @@ ACCUMULATE_EXAMPLE = """
     [[[[0.0, 0.5, 0.0, 0.0, 0.0, 0.5, 0.0]]]]
 """
 
+
+@public(warp.ACCUMULATE_DOC, warp.AccumulateOptions, example=ACCUMULATE_EXAMPLE)
+def accumulate_warps(
+    color: Float[Array, "b c h w"], velocity: Float[Array, "b 2 h w"] | None, *, offset_prev: Float[Array, "b 2 h w"] | None = None, offset_next: Float[Array, "b 2 h w"] | None = None, **options
+) -> Float[Array, "b c h w"]:
+    return warp.accumulate_warps(JAX, color, velocity, offset_prev=offset_prev, offset_next=offset_next, **options)
+
+
 WARP_BLEND_EXAMPLE = """
     >>> import jax.numpy as jnp
     >>> color = jnp.zeros((1, 1, 1, 9)).at[..., 4].set(1.0)
@@ -24,13 +32,6 @@ WARP_BLEND_EXAMPLE = """
     >>> warp_blend(color, velocity, iterations=1, alpha=0.5).tolist()  # taps at -2, 0, +2 px
     [[[[0.0, 0.0, 0.25, 0.0, 0.5, 0.0, 0.25, 0.0, 0.0]]]]
 """
-
-
-@public(warp.ACCUMULATE_DOC, warp.AccumulateOptions, example=ACCUMULATE_EXAMPLE)
-def accumulate_warps(
-    color: Float[Array, "b c h w"], velocity: Float[Array, "b 2 h w"] | None, *, offset_prev: Float[Array, "b 2 h w"] | None = None, offset_next: Float[Array, "b 2 h w"] | None = None, **options
-) -> Float[Array, "b c h w"]:
-    return warp.accumulate_warps(JAX, color, velocity, offset_prev=offset_prev, offset_next=offset_next, **options)
 
 
 @public(warp.WARP_BLEND_DOC, warp.WarpBlendOptions, example=WARP_BLEND_EXAMPLE)

@@ -36,12 +36,12 @@ def variants(group: str):
             "layers": lambda c, v, z, p, n, bg: o.bezier_scatter(c, z, p, n, composite="layers"),
             "sum, no depth test": lambda c, v, z, p, n, bg: o.bezier_scatter(c, z, p, n, soft_z_extent=1e6, composite="sum"),
             "layers, no depth test": lambda c, v, z, p, n, bg: o.bezier_scatter(c, z, p, n, soft_z_extent=1e6),
-            "sum, background": lambda c, v, z, p, n, bg: None if bg is None else o.bezier_scatter(c, z, p, n, background=bg, composite="sum"),
-            "layers, background": lambda c, v, z, p, n, bg: None if bg is None else o.bezier_scatter(c, z, p, n, background=bg),
+            "sum, background": lambda c, v, z, p, n, bg: None if bg is None else o.bezier_scatter(c, z, p, n, fill=bg, composite="sum"),
+            "layers, background": lambda c, v, z, p, n, bg: None if bg is None else o.bezier_scatter(c, z, p, n, fill=bg),
         }
     if group == "band":  # the scatter's relative depth band, with layers (the default composite)
         return {f"relative {r:g}": (lambda c, v, z, p, n, bg, r=r: o.bezier_scatter(c, z, p, n, relative_z_extent=r)) for r in (0.03, 0.1, 0.2, 0.3, 1.0)} | {
-            f"relative {r:g}, background": (lambda c, v, z, p, n, bg, r=r: None if bg is None else o.bezier_scatter(c, z, p, n, relative_z_extent=r, background=bg)) for r in (0.1, 0.3)}
+            f"relative {r:g}, background": (lambda c, v, z, p, n, bg, r=r: None if bg is None else o.bezier_scatter(c, z, p, n, relative_z_extent=r, fill=bg)) for r in (0.1, 0.3)}
     if group == "reconstruct":
         from proto_reconstruct import reconstruct as r
 

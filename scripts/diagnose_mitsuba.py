@@ -74,17 +74,17 @@ def _t(a):
 
 def coverage(b) -> np.ndarray:
     """Fraction of the exposure some moving path covers each pixel (no depth test), (H, W)."""
-    from torch_impl._scatter import _bezier_terms, _splat_sums
-    from torch_impl._sampling import pixel_grid
-    from diffblur.ops.scatter import constant_masses, moving_mask
+    from diffblur.ops.sampling import pixel_grid
+    from diffblur.ops.scatter import _bezier_terms, _splat_sums, constant_masses, moving_mask
     from diffblur.shutters import get_shutter
+    from torch_impl._backend import TORCH
 
     color, depth = _t(b.color), _t(b.depth)
     prev, nxt = _t(b.offset_prev), _t(b.offset_next)
-    x, y = pixel_grid(color.shape[2], color.shape[3], color)
+    x, y = pixel_grid(TORCH, color.shape[2], color.shape[3], color)
     moving = moving_mask("bezier", (prev, nxt), x, y)
     masses = torch.tensor(constant_masses(get_shutter("box"), 32), dtype=torch.float32)
-    sums = _splat_sums(color, depth, _bezier_terms(2, prev, nxt, None), masses, 1e9, moving, x, y, kind="bezier", paper=False)
+    sums = _splat_sums(TORCH, color, depth, _bezier_terms(2, prev, nxt, None), masses, 1e9, moving, x, y, kind="bezier", paper=False, passes=1)
     return sums[0, -1].numpy()
 
 
@@ -137,8 +137,8 @@ def methods(b, sweep: bool):
     yield "bezier_scatter", lambda: o.bezier_scatter(c, z, p, nx)
     yield "bezier_scatter, sum", lambda: o.bezier_scatter(c, z, p, nx, composite="sum")
     if bg is not None:
-        yield "bezier_scatter, background", lambda: o.bezier_scatter(c, z, p, nx, background=bg)
-        yield "bezier_scatter, background, sum", lambda: o.bezier_scatter(c, z, p, nx, background=bg, composite="sum")
+        yield "bezier_scatter, background", lambda: o.bezier_scatter(c, z, p, nx, fill=bg)
+        yield "bezier_scatter, background, sum", lambda: o.bezier_scatter(c, z, p, nx, fill=bg, composite="sum")
     yield "warp_blend", lambda: o.warp_blend(c, v)
     yield "accumulate_warps", lambda: o.accumulate_warps(c, v)
     if not sweep:

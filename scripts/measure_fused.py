@@ -79,8 +79,8 @@ def targets(repeats: int) -> None:
     print("1280x720 uniform pan, float32, S=15 (ms)")
     print(f"{'op':<12} {'path':<11} {'torch fwd':>10} {'torch f+b':>10} {'jax compile':>12} {'jax fwd':>9} {'jax f+b':>9}")
     for op, keys in names.items():
-        for path, fused in (("fused", None), ("tensor ops", False)):
-            options = dict(samples=15, fused=fused)
+        for path, impl in (("fused", "auto"), ("tensor ops", "tensor")):
+            options = dict(samples=15, impl=impl)
             torch_fwd, torch_both = _torch_pair(op, [torch.from_numpy(scene[k]) for k in keys], options, repeats)
             compile_ms, jax_fwd, jax_both = _jax_pair(op, [jnp.asarray(scene[k]) for k in keys], options, repeats)
             print(f"{op:<12} {path:<11} {torch_fwd:10.0f} {torch_both:10.0f} {compile_ms:12.0f} {jax_fwd:9.0f} {jax_both:9.0f}", flush=True)
@@ -111,18 +111,18 @@ def adaptive(repeats: int) -> None:
     print("512x512, 90 % still, float32, S=15, forward (ms); JAX jitted")
     for op in ("gather_blur", "reconstruct"):
         count = 2 if op == "gather_blur" else 3
-        for path, fused in (("fused", None), ("tensor ops", False)):
+        for path, impl in (("fused", "auto"), ("tensor ops", "tensor")):
             for framework in ("torch", "jax"):
                 if framework == "torch":
                     arrays = [torch.from_numpy(a) for a in scene[:count]]
                     fn = getattr(torch_impl, op)
-                    full = lambda fn=fn, arrays=arrays: fn(*arrays, samples=15, fused=fused).numpy()  # noqa: E731
-                    tiled = lambda fn=fn, arrays=arrays: fn(*arrays, samples=15, adaptive=True, fused=fused).numpy()  # noqa: E731
+                    full = lambda fn=fn, arrays=arrays: fn(*arrays, samples=15, impl=impl).numpy()  # noqa: E731
+                    tiled = lambda fn=fn, arrays=arrays: fn(*arrays, samples=15, adaptive=True, impl=impl).numpy()  # noqa: E731
                 else:
                     arrays = [jnp.asarray(a) for a in scene[:count]]
                     fn = getattr(jax_impl, op)
-                    full_jit = jax.jit(lambda *a, fn=fn: fn(*a, samples=15, fused=fused))
-                    tiled_jit = jax.jit(lambda *a, fn=fn: fn(*a, samples=15, adaptive=True, fused=fused))
+                    full_jit = jax.jit(lambda *a, fn=fn: fn(*a, samples=15, impl=impl))
+                    tiled_jit = jax.jit(lambda *a, fn=fn: fn(*a, samples=15, adaptive=True, impl=impl))
                     full = lambda f=full_jit, arrays=arrays: np.asarray(f(*arrays))  # noqa: E731
                     tiled = lambda f=tiled_jit, arrays=arrays: np.asarray(f(*arrays))  # noqa: E731
                 with torch.no_grad():

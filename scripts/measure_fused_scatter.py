@@ -89,9 +89,9 @@ def main() -> None:
     print(f"bezier_scatter 1280x720 float32, uniform pan |V| = {HALF_SPREAD:g} px, degree 2 (ms); cpus {os.cpu_count()}, numba threads {numba.get_num_threads()}")
     print(f"load average before: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
     print(f"{'path':<11} {'samples':>7} {'torch fwd':>10} {'torch f+b':>10} {'jax compile':>12} {'jax fwd':>9} {'jax f+b':>9}")
-    paths = (("fused", None),) if args.fused_only else (("fused", None), ("tensor ops", False))
-    for path, fused in paths:
-        options = dict(degree=2, samples=SAMPLES, shutter="gaussian", fused=fused)
+    paths = (("fused", "auto"),) if args.fused_only else (("fused", "auto"), ("tensor ops", "tensor"))
+    for path, impl in paths:
+        options = dict(degree=2, samples=SAMPLES, shutter="gaussian", impl=impl)
         torch_fwd, torch_both = torch_times(arrays, options, args.repeats)
         compile_ms, jax_fwd, jax_both = jax_times(arrays, options, args.repeats)
         print(f"{path:<11} {SAMPLES:>7} {torch_fwd:10.0f} {torch_both:10.0f} {compile_ms:12.0f} {jax_fwd:9.0f} {jax_both:9.0f}", flush=True)

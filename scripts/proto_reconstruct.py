@@ -3,19 +3,25 @@ a jittered NeighborMax lookup and a directional weight on the taps."""
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
 
 from diffblur import reference
-from diffblur.ops.taps import reconstruct_options, reconstruct_tap_time, shutter_factor
-from torch_impl._primitives import _cone, _cylinder, _safe_length, _soft_depth_compare, neighbor_max, tile_max
-from torch_impl._sampling import pixel_grid, sample
+from diffblur.ops import primitives, sampling
+from diffblur.ops.reconstruct import ReconstructOptions
+from diffblur.ops.taps import reconstruct_tap_time, shutter_factor
+from torch_impl import neighbor_max, tile_max
+from torch_impl._backend import TORCH
+
+# The unchecked math of the ops (`diffblur.ops`), for PyTorch.
+_cone, _cylinder, _safe_length, _soft_depth_compare = (functools.partial(f, TORCH) for f in (primitives.cone, primitives.cylinder, primitives.safe_length, primitives.soft_depth_compare))
+pixel_grid, sample = functools.partial(sampling.pixel_grid, TORCH), functools.partial(sampling.sample, TORCH)
 
 
 def reconstruct(color, velocity, depth, *, max_radius=20.0, samples=15, relative=0.3, lookup_jitter=0.0, directional=False, min_radius=0.5):
-    o = reconstruct_options(max_radius=max_radius, samples=samples, soft_z_extent=None, relative_z_extent=relative, sampling="bilinear",
-                            shutter="box", early_out=None, directions="neighbor", min_radius=min_radius)
+    o = ReconstructOptions(max_radius=max_radius, samples=samples, relative_z_extent=relative, shutter="box", min_radius=min_radius)
     batch, channels, height, width = color.shape
     tile = o.tile
     depth = torch.log(depth)
@@ -52,10 +58,10 @@ def reconstruct(color, velocity, depth, *, max_radius=20.0, samples=15, relative
         distance = torch.abs(t) * speed_n
         c_y, v_y, z_y = read[:, :channels], read[:, channels:channels + 2], read[:, channels + 2:]
         speed_y = torch.clamp(_safe_length(v_y), min=min_radius)
-        front = _soft_depth_compare(depth, z_y, o.soft_z_extent) * _cone(distance, speed_y)
+        front = _soft_depth_compare(depth, z_y, o.band) * _cone(distance, speed_y)
         if directional:  # seed 000 sec. 2.3: case 1 assumes V[Y] lies along v_N
             front = front * torch.abs((v_y * dir_n).sum(1, keepdim=True)) / speed_y.clamp(min=1e-3)
-        alpha = front + _soft_depth_compare(z_y, depth, o.soft_z_extent) * _cone(distance, speed_x) + _cylinder(distance, speed_y) * _cylinder(distance, speed_x) * 2.0
+        alpha = front + _soft_depth_compare(z_y, depth, o.band) * _cone(distance, speed_x) + _cylinder(distance, speed_y) * _cylinder(distance, speed_x) * 2.0
         weight = weight + alpha
         total = total + alpha * c_y
     return total / weight

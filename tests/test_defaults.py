@@ -141,6 +141,6 @@ def test_the_defaults_table_in_the_docs_matches_the_signatures():
                 if option[0] == op:
                     assert parameters[option[1]].default == default, (module.__name__, op, option[1])
             for name, p in parameters.items():
-                if p.kind == p.KEYWORD_ONLY and p.default is not None and not callable(p.default) and name != "fused":
+                if p.kind == p.KEYWORD_ONLY and p.default is not None and not callable(p.default):
                     assert (op, name) in documented or name == "shutter", (op, name)
     assert "| all that take one | `shutter` | `\"box\"` |" in text and conventions.DEFAULT_SHUTTER == "box"

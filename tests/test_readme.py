@@ -68,6 +68,26 @@ def test_the_layout_table_names_files_that_exist():
         assert list(ROOT.glob(path)), path
 
 
+def test_the_layout_table_points_at_each_ops_definition_and_backends():
+    """Each row of the layout table names the files that define the op: its definition in
+    diffblur/ops and both backends' public functions hold `def <op>(` (or `class <op>`)."""
+    section = README.split("## Where things are", 1)[1].split("\n## ", 1)[0]
+    rows = [line for line in section.splitlines() if line.startswith("| `")]
+    assert len(rows) >= 6
+    for row in rows:
+        cells = [cell.strip() for cell in row.strip("|").split("|")]
+        ops = [name for name in re.findall(r"`(\w+)`", cells[0]) if name not in ("tile_max", "cone")] or ["tile_max"]
+        files = {column: re.findall(r"`([\w/.]+\.py)`", cells[column]) for column in (1, 2)}
+        for op in ops:
+            pattern = re.compile(rf"^(def|class) {op}\b", re.MULTILINE)
+            for path in [*files[1], *files[2]]:
+                text = (ROOT / path).read_text()
+                if path.startswith("diffblur/ops/") and op == "MotionBlur":
+                    assert "def blur(" in text, path
+                else:
+                    assert pattern.search(text), (op, path)
+
+
 def test_demo_writes_a_picture_and_a_table(tmp_path, capsys):
     from diffblur.app.demo import DEMO_METHODS
 

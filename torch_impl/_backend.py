@@ -20,6 +20,7 @@ from torch import Tensor
 from torch.utils.checkpoint import checkpoint
 
 from diffblur import checks, reference
+from diffblur.ops.backend import Backend
 from diffblur.ops.primitives import interleaved_gradient_noise
 
 
@@ -45,14 +46,7 @@ def _noise_jitter(height: int, width: int, dtype: torch.dtype, device: torch.dev
     return torch.tensor(reference.noise_jitter(height, width), device=device).to(dtype).reshape(1, 1, height, width)
 
 
-class TorchBackend:
-    name = "torch"
-    xp = torch
-    half = (torch.float16, torch.bfloat16)
-    compiler = "torch.compile"
-    integer = torch.int64
-    array_word = "tensor"
-    array_type_name = "torch.Tensor"
+class TorchBackend(Backend):
 
     # -- argument facts and value checks ------------------------------------------------------------
 
@@ -131,6 +125,10 @@ class TorchBackend:
         return x.long()
 
     @staticmethod
+    def argmax(x: Tensor, axis: int) -> Tensor:
+        return torch.argmax(x, dim=axis, keepdim=True)
+
+    @staticmethod
     def stop_gradient(x: Tensor) -> Tensor:
         return x.detach()
 
@@ -173,13 +171,7 @@ class TorchBackend:
         return F.pad(x, flat, value=value) if flat else x
 
     @staticmethod
-    def argmax(x: Tensor, axis: int) -> Tensor:
-        return torch.argmax(x, dim=axis, keepdim=True)
-
-    @staticmethod
     def take_along(x: Tensor, index: Tensor, axis: int) -> Tensor:
-        """x's values at integer `index` along `axis`, the other axes broadcast (NumPy's
-        take_along_axis)."""
         return torch.take_along_dim(x, index, dim=axis)
 
     @staticmethod
@@ -286,30 +278,11 @@ class TorchBackend:
 
     # -- the fused CPU kernels (`torch_impl._fused`, `torch_impl._fused_scatter`) ----------------------
 
-    @staticmethod
-    def kernel_reason(op: str, color: Tensor, o: Any, *arrays: Tensor) -> str | None:
-        """Why `op`'s fused kernel cannot run these inputs and options, or None when it can."""
+    def bindings(self) -> tuple[Any, Any]:
         from torch_impl import _fused, _fused_scatter
 
-        if op == "gather_blur":
-            return _fused.gather_unfused_reason(color, o.sampling)
-        if op == "bezier_scatter":
-            return _fused_scatter.unfused_reason(color)
-        return _fused.unfused_reason(o, color, *arrays)
-
-    @staticmethod
-    def run_kernel(op: str, *arrays: Tensor) -> Tensor:
-        """`op` on its fused kernel: the arrays, then the options."""
-        from diffblur.ops.sampling import position_dtype
-        from torch_impl import _fused, _fused_scatter
-
-        if op == "bezier_scatter":  # color, depth, kind, terms, masses, extent, moving, paper
-            return _fused_scatter.fused_splat(*arrays)
-        *arrays, o = arrays
-        if op == "gather_blur":
-            return _fused.fused_gather(*arrays, o.window, o.samples, o.classes, position_dtype(TORCH, arrays[0].dtype))
-        return _fused.fused_reconstruct(*arrays, o)
+        return _fused, _fused_scatter
 
 
-TORCH = TorchBackend()
+TORCH = TorchBackend("torch", torch, half=(torch.float16, torch.bfloat16), compiler="torch.compile", integer=torch.int64, array_word="tensor", array_type_name="torch.Tensor")
 

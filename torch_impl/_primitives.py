@@ -49,28 +49,37 @@ def safe_length(vector: Float[Tensor, "b c h w"], *, axis: int = 1) -> Float[Ten
     return p.safe_length_op(TORCH, vector, axis)
 
 
+@public(p.TILE_MAX_DOC, example="""
+    >>> import torch
+    >>> v = torch.zeros(1, 2, 2, 4); v[0, 0, 1, 1] = 3.0; v[0, 1, 0, 3] = -1.0
+    >>> tile_max(v, 2)[0].tolist()  # the longest vector of each 2 x 2 tile
+    [[[3.0, 0.0]], [[0.0, -1.0]]]""")
+def tile_max(velocity: Float[Tensor, "b 2 h w"], tile: int) -> Float[Tensor, "b 2 th tw"]:
+    return p.tile_max_op(TORCH, velocity, tile)
+
+
+@public(p.NEIGHBOR_MAX_DOC, example="""
+    >>> import torch
+    >>> tiles = torch.zeros(1, 2, 1, 4); tiles[0, 0, 0, 0] = 2.0
+    >>> neighbor_max(tiles)[0, 0].tolist()  # the longest of each tile's 3 x 3 neighbours
+    [[2.0, 2.0, 0.0, 0.0]]""")
+def neighbor_max(tile_velocity: Float[Tensor, "b 2 th tw"]) -> Float[Tensor, "b 2 th tw"]:
+    return p.neighbor_max_op(TORCH, tile_velocity)
+
+
+@public(p.INTERLEAVED_GRADIENT_NOISE_DOC, example="""
+    >>> import torch
+    >>> noise = interleaved_gradient_noise(4, 6, dtype=torch.float64)
+    >>> noise.shape, bool(((noise >= 0) & (noise < 1)).all())
+    (torch.Size([4, 6]), True)""")
+def interleaved_gradient_noise(height: int, width: int, *, dtype: torch.dtype | None = None, device: torch.device | str | None = None) -> Float[Tensor, "h w"]:
+    return p.interleaved_gradient_noise_op(TORCH, height, width, dtype=dtype, device=device)
+
+
 @public(p.VELOCITY_FROM_MOTION_DOC, example="""
     >>> import torch
     >>> d = torch.tensor([[3.0, 0.2, 60.0], [4.0, 0.0, 80.0]]).reshape(1, 2, 1, 3)
     >>> velocity_from_motion(d, exposure=1.0, max_radius=20.0)[0, :, 0].T.tolist()
     [[1.5, 2.0], [0.5, 0.0], [12.0, 16.0]]""")
-def velocity_from_motion(
-    displacement: Float[Tensor, "b 2 h w"], *, exposure: float | Tensor = 1.0, max_radius: float = DEFAULT_MAX_RADIUS, min_radius: float = DEFAULT_MIN_RADIUS
-) -> Float[Tensor, "b 2 h w"]:
+def velocity_from_motion(displacement: Float[Tensor, "b 2 h w"], *, exposure: float | Tensor = 1.0, max_radius: float = DEFAULT_MAX_RADIUS, min_radius: float = DEFAULT_MIN_RADIUS) -> Float[Tensor, "b 2 h w"]:
     return p.velocity_from_motion_op(TORCH, displacement, exposure=exposure, max_radius=max_radius, min_radius=min_radius)
-
-
-@public(p.TILE_MAX_DOC)
-def tile_max(velocity: Float[Tensor, "b 2 h w"], tile: int) -> Float[Tensor, "b 2 th tw"]:
-    return p.tile_max_op(TORCH, velocity, tile)
-
-
-@public(p.NEIGHBOR_MAX_DOC)
-def neighbor_max(tile_velocity: Float[Tensor, "b 2 th tw"]) -> Float[Tensor, "b 2 th tw"]:
-    return p.neighbor_max_op(TORCH, tile_velocity)
-
-
-@public(p.INTERLEAVED_GRADIENT_NOISE_DOC)
-def interleaved_gradient_noise(height: int, width: int, *, dtype: torch.dtype | None = None, device: torch.device | str | None = None) -> Float[Tensor, "h w"]:
-    return p.interleaved_gradient_noise_op(TORCH, height, width, dtype=dtype, device=device)
-

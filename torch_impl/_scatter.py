@@ -23,16 +23,7 @@ EXAMPLE = """
 
 @public(scatter.DOC, scatter.ScatterOptions, example=EXAMPLE)
 def bezier_scatter(
-    color: Float[Tensor, "b c h w"],
-    depth: Float[Tensor, "b 1 h w"],
-    offset_prev: Float[Tensor, "b 2 h w"] | None,
-    offset_next: Float[Tensor, "b 2 h w"] | None,
-    *,
-    offset_mid_prev: Float[Tensor, "b 2 h w"] | None = None,
-    arc_center: Float[Tensor, "b 2 h w"] | None = None,
-    arc_angle: Float[Tensor, "b 1 h w"] | None = None,
-    **options,
+    color: Float[Tensor, "b c h w"], depth: Float[Tensor, "b 1 h w"], offset_prev: Float[Tensor, "b 2 h w"] | None, offset_next: Float[Tensor, "b 2 h w"] | None, *,
+    offset_mid_prev: Float[Tensor, "b 2 h w"] | None = None, arc_center: Float[Tensor, "b 2 h w"] | None = None, arc_angle: Float[Tensor, "b 1 h w"] | None = None, **options,
 ) -> Float[Tensor, "b c h w"]:
-    return scatter.bezier_scatter(
-        TORCH, color, depth, offset_prev, offset_next, offset_mid_prev=offset_mid_prev, arc_center=arc_center, arc_angle=arc_angle, **options
-    )
+    return scatter.bezier_scatter(TORCH, color, depth, offset_prev, offset_next, offset_mid_prev=offset_mid_prev, arc_center=arc_center, arc_angle=arc_angle, **options)

@@ -18,6 +18,14 @@ ACCUMULATE_EXAMPLE = """
     tensor([[[[0.0000, 0.5000, 0.0000, 0.0000, 0.0000, 0.5000, 0.0000]]]])
 """
 
+
+@public(warp.ACCUMULATE_DOC, warp.AccumulateOptions, example=ACCUMULATE_EXAMPLE)
+def accumulate_warps(
+    color: Float[Tensor, "b c h w"], velocity: Float[Tensor, "b 2 h w"] | None, *, offset_prev: Float[Tensor, "b 2 h w"] | None = None, offset_next: Float[Tensor, "b 2 h w"] | None = None, **options
+) -> Float[Tensor, "b c h w"]:
+    return warp.accumulate_warps(TORCH, color, velocity, offset_prev=offset_prev, offset_next=offset_next, **options)
+
+
 WARP_BLEND_EXAMPLE = """
     >>> import torch
     >>> color = torch.zeros(1, 1, 1, 9); color[..., 4] = 1.0
@@ -25,13 +33,6 @@ WARP_BLEND_EXAMPLE = """
     >>> warp_blend(color, velocity, iterations=1, alpha=0.5).tolist()  # taps at -2, 0, +2 px
     [[[[0.0, 0.0, 0.25, 0.0, 0.5, 0.0, 0.25, 0.0, 0.0]]]]
 """
-
-
-@public(warp.ACCUMULATE_DOC, warp.AccumulateOptions, example=ACCUMULATE_EXAMPLE)
-def accumulate_warps(
-    color: Float[Tensor, "b c h w"], velocity: Float[Tensor, "b 2 h w"] | None, *, offset_prev: Float[Tensor, "b 2 h w"] | None = None, offset_next: Float[Tensor, "b 2 h w"] | None = None, **options
-) -> Float[Tensor, "b c h w"]:
-    return warp.accumulate_warps(TORCH, color, velocity, offset_prev=offset_prev, offset_next=offset_next, **options)
 
 
 @public(warp.WARP_BLEND_DOC, warp.WarpBlendOptions, example=WARP_BLEND_EXAMPLE)

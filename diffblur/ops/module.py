@@ -39,11 +39,14 @@ __all__ = [
     "BEZIER_PATHS",
     "METHOD_ARRAY_INPUTS",
     "METHOD_INPUTS",
+    "CALL_DOC",
+    "DOC",
     "PATH_INPUTS",
     "bezier_path",
     "blur",
     "bezier_paths",
     "check_method_options",
+    "layer_doc",
     "learnable_shutter_fields",
     "require_inputs",
     "shutter_option",
@@ -121,6 +124,41 @@ def bezier_paths(given: Mapping[str, Any], exposure: Any, degree: int) -> dict[s
     if way == "offsets":
         return {n: None if given.get(n) is None else given[n] * exposure for n in BEZIER_PATHS["offsets"]}
     return {"offset_prev": None, "offset_next": None, "arc_center": given["arc_center"], "arc_angle": given["arc_angle"] * exposure}
+
+
+DOC = """Motion blur as a layer, optionally with a learnable exposure (a scale on the velocity) and
+    shutter shape.
+
+    Args:
+        method: "reconstruct" (seed 000, needs velocity and depth), "gather" (seed 001) or "bezier"
+            (seed 003's curve scatter, `bezier_scatter`: needs depth and a path, see the call).
+            "warp_blend" (seed 002, `warp_blend`) and "accumulate" (`accumulate_warps`, the
+            accumulation baseline) read velocity only.
+        exposure: initial exposure, the factor applied to the velocity (1 = as given); with "bezier",
+            to the offsets (the path scaled about each pixel) or to the arc's angle.
+        learn_exposure: make the exposure trainable (PyTorch: an `nn.Parameter`, else a buffer; JAX:
+            an array field, trainable under `eqx.filter`, else a static float). Off by default: where
+            a network predicts the velocity, a learnable exposure is a second scale on it, which the
+            optimiser can trade against the network's output; turn it on to fit an exposure to a
+            known motion.
+        learn_shutter: make the shutter window's shape parameters (e.g. Tukey's taper) trainable
+            too; the window comes from the `shutter` option.
+        **options: the method's keyword options (samples, sampling, shutter, impl, ...), checked by
+            name; bezier's `fill` here is "still" or "color" (an array fill goes to the call).
+"""
+
+CALL_DOC = """Blur `color` (B, C, H, W) by `velocity` (B, 2, H, W) x exposure, with `depth` (B, 1, H, W)
+        where the method reads it.
+
+        "bezier" takes one path: a velocity V (the segment from X - V to X + V), or offset_prev and
+        offset_next (and offset_mid_prev with degree=3), or arc_center and arc_angle, as
+        `bezier_scatter` does; and optionally the scene behind the moving objects as `fill` (an
+        array; a fill of "still" or "color" is an option of the layer)."""
+
+
+def layer_doc(example: str) -> str:
+    """The layer's docstring followed by a backend's example (a doctest)."""
+    return DOC + "\n" + example
 
 
 #: The path arrays the layer's call takes besides velocity and depth (method="bezier" only).
