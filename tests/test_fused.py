@@ -93,7 +93,7 @@ def test_torch_fused_matches_pure_float64(case):
 @pytest.mark.parametrize("case", list(CASES))
 def test_jax_fused_matches_pure_float64_under_jit(case):
     arrays = _scene()
-    _assert_close(_jax_run(arrays, CASES[case], True, jax.jit), _jax_run(arrays, CASES[case], "tensor"), FUSED_FLOAT64)
+    _assert_close(_jax_run(arrays, CASES[case], "fused", jax.jit), _jax_run(arrays, CASES[case], "tensor"), FUSED_FLOAT64)
 
 
 @pytest.mark.parametrize("case", ["default", "own directions", "adaptive, early out", "adaptive, classes past a middle"])

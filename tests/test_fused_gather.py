@@ -87,7 +87,7 @@ def test_torch_fused_matches_pure_float64(case):
 def test_jax_fused_matches_pure_float64_under_jit(case):
     arrays = _scene()
     matters = CASES[case]["samples"] > 1
-    _assert_close(_jax_run(arrays, CASES[case], True, jax.jit), _jax_run(arrays, CASES[case], "tensor"), FUSED_FLOAT64, velocity_matters=matters)
+    _assert_close(_jax_run(arrays, CASES[case], "fused", jax.jit), _jax_run(arrays, CASES[case], "tensor"), FUSED_FLOAT64, velocity_matters=matters)
 
 
 def test_jax_eager_adaptive_matches_pure():
@@ -116,10 +116,10 @@ def test_shutter_parameter_gradient_matches_pure_in_both_frameworks():
             return jnp.sum(jax_impl.gather_blur(jnp.asarray(color), jnp.asarray(velocity), samples=7, shutter=LinearRamp(s), impl=impl) * cotangent)
 
         grads["jax", impl] = jax.jit(jax.grad(loss))(jnp.asarray(0.6))
-    assert abs(float(grads["torch", False])) > 0.1
+    assert abs(float(grads["torch", "tensor"])) > 0.1
     for framework in ("torch", "jax"):
-        np.testing.assert_allclose(float(grads[framework, True]), float(grads[framework, False]), rtol=1e-12)
-    np.testing.assert_allclose(float(grads["jax", True]), float(grads["torch", True]), rtol=1e-12)
+        np.testing.assert_allclose(float(grads[framework, "fused"]), float(grads[framework, "tensor"]), rtol=1e-12)
+    np.testing.assert_allclose(float(grads["jax", "fused"]), float(grads["torch", "fused"]), rtol=1e-12)
 
 
 def test_float32_both_frameworks_agree():

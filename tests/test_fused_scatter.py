@@ -69,8 +69,9 @@ def _call(ops, values: dict, path: str, options: dict, impl: str):
     fields, path_options = PATHS[path]
     offsets = (None, None) if path == "arc" else (values["offset_prev"], values["offset_next"])
     given = {name: values[name] for name in fields if name not in ("offset_prev", "offset_next")}
-    if "background" in values:  # the scene behind, as the fill
+    if "background" in values:  # the scene behind, as the fill (in place of a named one)
         given["fill"] = values["background"]
+        options = {name: value for name, value in options.items() if name != "fill"}
     return ops.bezier_scatter(values["color"], values["depth"], *offsets, **given, **path_options, **options, impl=impl)
 
 

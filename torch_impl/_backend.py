@@ -43,7 +43,10 @@ def _constant(function: Callable, *args: Any) -> Any:
 
 @functools.lru_cache(maxsize=16)
 def _noise_jitter(height: int, width: int, dtype: torch.dtype, device: torch.device) -> Tensor:
-    return torch.tensor(reference.noise_jitter(height, width), device=device).to(dtype).reshape(1, 1, height, width)
+    # A normal tensor even when first asked for under torch.inference_mode: a later call with
+    # gradients saves it for the backward, which an inference tensor refuses.
+    with torch.inference_mode(False):
+        return torch.tensor(reference.noise_jitter(height, width), device=device).to(dtype).reshape(1, 1, height, width)
 
 
 class TorchBackend(Backend):
@@ -107,7 +110,10 @@ class TorchBackend(Backend):
     @staticmethod
     def values(x: Tensor) -> np.ndarray | None:
         """x's values as NumPy when they are known now (eager), else None."""
-        return None if torch.compiler.is_compiling() else x.detach().cpu().numpy()
+        if torch.compiler.is_compiling():
+            return None
+        x = x.detach().cpu()
+        return (x.float() if x.dtype == torch.bfloat16 else x).numpy()  # NumPy has no bfloat16
 
     # -- arrays -------------------------------------------------------------------------------------
 
