@@ -352,11 +352,12 @@ def point_count(max_length: float, max_samples: int) -> int:
     return int(min(max(math.ceil(max_length), 1), max_samples))
 
 
-def traced_count_message(framework: str) -> str:
-    """The error for samples=None while tracing: the count sets shapes and must be a Python int."""
+def traced_count_message(where: str) -> str:
+    """The error for samples=None where the values are not known (`where`: "under jax.jit", "on meta
+    arrays"): the count sets shapes and must be a Python int."""
     return (
         f"samples=None measures the curves to choose the point count, which needs concrete arrays; "
-        f"under {framework} pass samples=<int> (a static count, e.g. max_samples)"
+        f"{where} pass samples=<int> (a static count, e.g. max_samples)"
     )
 
 
@@ -571,8 +572,8 @@ def _longest(be: Any, kind: str, terms: tuple, like: Any) -> float:
     x, y = pixel_grid(be, like.shape[2], like.shape[3], like)
     terms = tuple(None if term is None else be.stop_gradient(term) for term in terms)
     longest = be.values(polyline_length(kind, terms, x[None], y[None], be.xp, be.xp.hypot).max())
-    if longest is None:
-        raise ValueError(traced_count_message(be.compiler))
+    if longest is None:  # traced, or on a device without values (PyTorch's meta device)
+        raise ValueError(traced_count_message(f"under {be.compiler}" if be.is_tracing(like) else f"on {like.device} arrays"))
     return float(longest)
 
 
