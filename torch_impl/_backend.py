@@ -41,6 +41,10 @@ def _constant(function: Callable, *args: Any) -> Any:
     return function(*args)
 
 
+#: `TorchBackend.outside_compiler`'s functions, by (function, reason).
+_EAGER: dict[tuple[Callable, str], Callable] = {}
+
+
 @functools.lru_cache(maxsize=16)
 def _noise_jitter(height: int, width: int, dtype: torch.dtype, device: torch.device) -> Tensor:
     # A normal tensor even when first asked for under torch.inference_mode: a later call with
@@ -213,10 +217,13 @@ class TorchBackend(Backend):
         return _constant(function, *args)
 
     @staticmethod
-    @functools.cache
     def outside_compiler(function: Callable, reason: str) -> Callable:
-        """The function, run eagerly under torch.compile (a graph break; outside it the same)."""
-        return torch.compiler.disable(function, reason=reason)
+        """The function, run eagerly under torch.compile (a graph break; outside it the same). Kept
+        in a dict, not an lru_cache, which Dynamo warns it traces through."""
+        key = (function, reason)
+        if key not in _EAGER:
+            _EAGER[key] = torch.compiler.disable(function, reason=reason)
+        return _EAGER[key]
 
     @staticmethod
     def compiled(function: Callable, static_argnames: tuple[str, ...]) -> Callable:
