@@ -33,7 +33,7 @@ def _backend_reason() -> str | None:
     if jax.device_count() > 1:
         # A pure_callback runs on one device: under a sharded jax.jit XLA gathers the whole batch to
         # it, and the gradient of bezier_scatter's fused splats then deadlocked in an all-reduce
-        # until XLA aborted the process (2 host devices, issue 25). The tensor ops shard.
+        # until XLA aborted the process (2 host devices). The tensor ops shard.
         return (
             f"JAX has {jax.device_count()} devices and the fused kernel's host callback runs on one"
             " (under a sharded jax.jit it deadlocked); pass impl='tensor', or run with one device"
