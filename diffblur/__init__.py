@@ -1,9 +1,8 @@
 """diffblur: differentiable real-time motion blur, framework-neutral core (NumPy only).
 
 The core, this package's top level: `conventions` (shapes, units, constants), `checks` (argument
-checks both backends share), `shutters`, `taps` and the option modules (`_scatter_options`,
-`_warp_options`, `_adaptive`, `_pyramid`), `motion_ids`, `modules`, `metrics`, and `reference` (the
-NumPy oracle of every op). Above it: `kernels` (the fused CPU kernels, numba), `scenes` (the
+checks both backends share), `shutters`, `metrics`, `ops` (every op defined once: its options,
+docstring and math, for both frameworks) and `reference` (the NumPy oracle of every op). Above it: `kernels` (the fused CPU kernels, numba), `scenes` (the
 ground-truth renderer) and `app` (the command, the benchmark, the demo). The PyTorch ops live in
 `torch_impl`, the JAX ops in `jax_impl`; only `app` imports them, and nothing in this package
 imports a framework (tests/core/test_layers.py).

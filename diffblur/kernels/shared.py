@@ -282,7 +282,7 @@ def _block_end(counts, b, tile_y, start, width, tile):
 
 @_inline
 def _tap_corner(px, py, last_x, last_y):
-    """A tap at (px, py) clamped to the image as `_sampling.sample` does: its top-left pixel (a
+    """A tap at (px, py) clamped to the image as `diffblur.ops.sampling.sample` does: its top-left pixel (a
     clamped position is >= 0, so int() floors it), the fractions, and whether the clamp left each
     coordinate alone (1.0) or cut its gradient (0.0)."""
     cx = min(max(px, 0.0), last_x)
@@ -297,7 +297,7 @@ def _tap_corner(px, py, last_x, last_y):
 @_inline
 def _pair_read(pairs, index, below, fx, fy):
     """Bilinear read of pair `index` (top row) and `index + below` (bottom row), in float64, as
-    `_sampling.sample` computes it (a + f (b - a), the columns first)."""
+    `diffblur.ops.sampling.sample` computes it (a + f (b - a), the columns first)."""
     top_left, top_right = _pair(pairs, index)
     bottom_left, bottom_right = _pair(pairs, index + below)
     top = top_left + fx * (top_right - top_left)
