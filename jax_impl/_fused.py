@@ -62,7 +62,7 @@ def forward_mode_hint(op: Callable) -> Callable:
 
 
 def unfused_reason(o, color, jitter=None) -> str | None:
-    """Why the fused reconstruct cannot run these inputs and options, or None when it can . A jitter
+    """Why the fused reconstruct cannot run these inputs and options, or None when it can. A jitter
     array is taken as it is: JAX cannot tell here whether it will be differentiated, and the
     kernel's rule gives it no gradient (PyTorch refuses a jitter that requires grad)."""
     return reconstruct_kernel.reconstruct_unfused_reason(o, str(jnp.dtype(color.dtype))) or _backend_reason()
