@@ -11,7 +11,6 @@ from diffblur import shutters as _shutters
 # series): registered here, as the core (`diffblur.shutters`) imports no framework.
 _shutters.register_erf("jax.numpy", _erf)
 
-from diffblur.ops import PUBLIC
 from jax_impl._gather import gather_blur
 from jax_impl._module import MotionBlur
 from jax_impl._motion_ids import velocity_from_motion_ids
@@ -20,4 +19,20 @@ from jax_impl._reconstruct import reconstruct
 from jax_impl._scatter import bezier_scatter
 from jax_impl._warp import accumulate_warps, warp_blend
 
-__all__ = list(PUBLIC)
+__all__ = [
+    "MotionBlur",
+    "accumulate_warps",
+    "bezier_scatter",
+    "cone",
+    "cylinder",
+    "gather_blur",
+    "interleaved_gradient_noise",
+    "neighbor_max",
+    "reconstruct",
+    "safe_length",
+    "soft_depth_compare",
+    "tile_max",
+    "velocity_from_motion",
+    "velocity_from_motion_ids",
+    "warp_blend",
+]

@@ -17,22 +17,3 @@ in the exposure, the shutter's weights).
 
 Nothing here imports a framework: the backends hand theirs in.
 """
-
-#: The public names of each backend (`torch_impl`, `jax_impl`): the same in both.
-PUBLIC = (
-    "MotionBlur",
-    "accumulate_warps",
-    "bezier_scatter",
-    "cone",
-    "cylinder",
-    "gather_blur",
-    "interleaved_gradient_noise",
-    "neighbor_max",
-    "reconstruct",
-    "safe_length",
-    "soft_depth_compare",
-    "tile_max",
-    "velocity_from_motion",
-    "velocity_from_motion_ids",
-    "warp_blend",
-)
