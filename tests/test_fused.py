@@ -20,6 +20,7 @@ import jax_impl  # noqa: E402
 from diffblur.kernels import reconstruct as reconstruct_kernel  # noqa: E402
 from diffblur.kernels.shared import _BLOCK  # noqa: E402
 import torch_impl  # noqa: E402
+from torch_impl._backend import TORCH  # noqa: E402
 from tests.tolerances import tolerance  # noqa: E402
 
 FUSED_FLOAT64, FUSED_FLOAT32 = (tolerance(dtype, "fused", "reconstruct") for dtype in ("float64", "float32"))
@@ -31,7 +32,10 @@ CASES = {
     "default": dict(max_radius=4.0, samples=7),
     "own directions": dict(max_radius=4.0, samples=7, directions="neighbor_and_own"),
     "early out": dict(max_radius=4.0, samples=7, early_out=True),
+    # Without jitter (or one constant per tile) the kernels read every tap as a shifted row.
     "no jitter": dict(max_radius=3.0, samples=5, jitter="none"),
+    "no jitter, adaptive, early out": dict(max_radius=4.0, samples=15, adaptive=(3, 7), early_out=True, jitter="none"),
+    "no jitter, min radius, soft z": dict(max_radius=5.0, samples=9, min_radius=1.5, soft_z_extent=0.02, jitter="none"),
     "adaptive": dict(max_radius=4.0, samples=15, adaptive=True),
     "adaptive, early out": dict(max_radius=4.0, samples=15, adaptive=(3, 7), early_out=True),
     # Tap 7, the middle of 15 (skipped), is a real tap of the 9-tap class beside it.
@@ -96,7 +100,7 @@ def test_jax_fused_matches_pure_float64_under_jit(case):
     _assert_close(_jax_run(arrays, CASES[case], "fused", jax.jit), _jax_run(arrays, CASES[case], "tensor"), FUSED_FLOAT64)
 
 
-@pytest.mark.parametrize("case", ["default", "own directions", "adaptive, early out", "adaptive, classes past a middle"])
+@pytest.mark.parametrize("case", ["default", "own directions", "adaptive, early out", "adaptive, classes past a middle", "no jitter", "no jitter, adaptive, early out"])
 def test_rows_wider_than_one_block(case):
     """The kernels run each row in blocks of at most _BLOCK pixels that end where the tiles'
     tap count changes: several blocks, a partial last one, adaptive classes side by side."""
@@ -128,6 +132,37 @@ def test_jitter_tensor_per_batch_item():
     options = dict(max_radius=4.0, samples=7)
     torch_jitter = dict(options, jitter=torch.tensor(jitter))
     _assert_close(_torch_run(arrays, torch_jitter, "fused"), _torch_run(arrays, torch_jitter, "tensor"), FUSED_FLOAT64)
+
+
+def _per_tile_jitter(tile, width=WIDTH, seed=4):
+    """A jitter constant over each tile's part of a row (it differs between rows and tiles)."""
+    values = np.random.default_rng(seed).uniform(-0.5, 0.5, size=(BATCH, 1, HEIGHT, -(-width // tile)))
+    return np.repeat(values, tile, axis=3)[..., :width]
+
+
+def test_which_jitters_read_shifted_rows():
+    """The kernels take the shifted rows exactly when every tile's taps share their offsets."""
+    tile = 4
+    assert reconstruct_kernel.shifted_rows(np.zeros((1, 1, HEIGHT, WIDTH)), tile, own_odd=False)
+    assert reconstruct_kernel.shifted_rows(_per_tile_jitter(tile), tile, own_odd=False)
+    assert not reconstruct_kernel.shifted_rows(_per_tile_jitter(tile), tile + 1, own_odd=False)
+    assert not reconstruct_kernel.shifted_rows(np.zeros((1, 1, HEIGHT, WIDTH)), tile, own_odd=True)
+    noise = TORCH.noise_jitter(HEIGHT, WIDTH, torch.zeros(1, dtype=torch.float64)).numpy()
+    assert not reconstruct_kernel.shifted_rows(noise, tile, own_odd=False)
+
+
+@pytest.mark.parametrize("width", [WIDTH, _BLOCK + 23])
+def test_a_jitter_constant_per_tile_matches_pure(width):
+    """A jitter array constant per tile (fractional tap times, different per row and tile) on the
+    shifted rows, both frameworks, float64."""
+    options = dict(max_radius=4.0, samples=7)
+    arrays = _scene(width=width)
+    jitter = _per_tile_jitter(4, width)
+    assert reconstruct_kernel.shifted_rows(jitter, 4, own_odd=False)
+    torch_options = dict(options, jitter=torch.tensor(jitter))
+    _assert_close(_torch_run(arrays, torch_options, "fused"), _torch_run(arrays, torch_options, "tensor"), FUSED_FLOAT64)
+    jax_options = dict(options, jitter=jnp.asarray(jitter))
+    _assert_close(_jax_run(arrays, jax_options, "fused", jax.jit), _jax_run(arrays, jax_options, "tensor"), FUSED_FLOAT64)
 
 
 def test_jax_vmap_over_a_leading_axis():

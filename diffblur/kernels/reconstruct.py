@@ -59,6 +59,7 @@ __all__ = [
     "reconstruct_backward_stacked",
     "reconstruct_forward",
     "reconstruct_unfused_reason",
+    "shifted_rows",
     "tile_counts",
 ]
 
@@ -132,6 +133,112 @@ def _cylinder_grad(distance, speed, inverse, grad):
 
 
 @_inline
+def _tap_alpha(z_x, z_y, v_yx, v_yy, distance, inverse_x, min_radius, extent, inverse_extent):
+    """A tap's weight from Z[X], the values read at Y and the tap's distance: the three classifiers."""
+    length_y = math.sqrt(v_yx * v_yx + v_yy * v_yy)
+    inverse_y = _floored_inverse(length_y if length_y >= min_radius else min_radius)
+    return (
+        _soft_depth_compare(z_x, z_y, extent, inverse_extent) * _cone(distance, inverse_y)
+        + _soft_depth_compare(z_y, z_x, extent, inverse_extent) * _cone(distance, inverse_x)
+        + _cylinder(distance, inverse_y) * _cylinder(distance, inverse_x) * 2.0
+    )
+
+
+@_inline
+def _row_read(flat, top, below, fx, fy):
+    """Bilinear read of a flat image at index `top` (top-left) and `top + below` (the row below), in
+    float64, the arithmetic of `_pair_read`. Along a shifted row consecutive pixels read consecutive
+    indices: contiguous vector loads, no gathers. The indices are unsigned: a signed index would
+    carry numba's negative-index wraparound, a select that turns the loads into gathers."""
+    one = np.uint64(1)
+    top_left = np.float64(flat[top])
+    top_right = np.float64(flat[top + one])
+    bottom_left = np.float64(flat[top + below])
+    bottom_right = np.float64(flat[top + below + one])
+    top_row = top_left + fx * (top_right - top_left)
+    bottom_row = bottom_left + fx * (bottom_right - bottom_left)
+    return top_row + fy * (bottom_row - top_row)
+
+
+@_inline
+def _row_read_slopes(flat, top, below, fx, fy):
+    """d read / d fx, d read / d fy and the read of `_row_read`."""
+    one = np.uint64(1)
+    top_left = np.float64(flat[top])
+    top_right = np.float64(flat[top + one])
+    bottom_left = np.float64(flat[top + below])
+    bottom_right = np.float64(flat[top + below + one])
+    top_row = top_left + fx * (top_right - top_left)
+    bottom_row = bottom_left + fx * (bottom_right - bottom_left)
+    return (1.0 - fy) * (top_right - top_left) + fy * (bottom_right - bottom_left), bottom_row - top_row, top_row + fy * (bottom_row - top_row)
+
+
+@_inline
+def _clamped_read_slopes(flat, plane, width, row0, row1, column, fx, fy):
+    """`_row_read_slopes` for one pixel whose tap was clamped at the border: plane is the index of
+    the image plane's first pixel, the right column clamped to the image as `_pairs` does."""
+    column1 = min(column + 1, width - 1)
+    top_left = np.float64(flat[plane + row0 * width + column])
+    top_right = np.float64(flat[plane + row0 * width + column1])
+    bottom_left = np.float64(flat[plane + row1 * width + column])
+    bottom_right = np.float64(flat[plane + row1 * width + column1])
+    top_row = top_left + fx * (top_right - top_left)
+    bottom_row = bottom_left + fx * (bottom_right - bottom_left)
+    return (1.0 - fy) * (top_right - top_left) + fy * (bottom_right - bottom_left), bottom_row - top_row, top_row + fy * (bottom_row - top_row)
+
+
+@_inline
+def _shifted_rows(py, shift_x, start, segment, segment_end, height, width, last_y):
+    """A tile segment [segment, segment_end)'s tap at offset (shift_x, py - y): the rows read and
+    their fraction, the whole-pixel column shift and the column fraction, whether the row was
+    clamped (inside_y 0.0) and the segment's pixels whose reads lie inside the image, as block
+    offsets [first, last). The others (clamped at the border) are read one by one."""
+    clamped_y = min(max(py, 0.0), last_y)
+    row0 = np.int64(clamped_y)
+    fy = clamped_y - row0
+    row1 = min(row0 + 1, height - 1)
+    inside_y = 1.0 if (py >= 0.0) & (py <= last_y) else 0.0
+    shift = np.int64(math.floor(shift_x))
+    first = min(max(segment, -shift), segment_end)
+    last = max(min(segment_end, width - 1 - shift), first)
+    return row0, row1, fy, inside_y, shift, shift_x - shift, first - start, last - start
+
+
+@_inline
+def _tap_gradients(z_x, speed_x, inverse_x, distance, g_alpha, v_yx, v_yy, z_y, min_radius, extent, inverse_extent):
+    """A tap's weight alpha and the derivatives of g_alpha * alpha: w.r.t. V[Y] (x, y), Z[Y], the
+    classifiers' speed of X, Z[X] and the tap's distance (the pure op's one-sided rules)."""
+    length_y = math.sqrt(v_yx * v_yx + v_yy * v_yy)
+    speed_y = length_y if length_y >= min_radius else min_radius
+    inverse_y = _floored_inverse(speed_y)
+    front = _soft_depth_compare(z_x, z_y, extent, inverse_extent)
+    behind = _soft_depth_compare(z_y, z_x, extent, inverse_extent)
+    cone_y = _cone(distance, inverse_y)
+    cone_x = _cone(distance, inverse_x)
+    cylinder_y = _cylinder(distance, inverse_y)
+    cylinder_x = _cylinder(distance, inverse_x)
+    alpha = front * cone_y + behind * cone_x + cylinder_y * cylinder_x * 2.0
+    g_front = g_alpha * cone_y
+    g_behind = g_alpha * cone_x
+    front_slope = g_front * inverse_extent if (z_y - z_x >= 0.0) & (z_y - z_x <= extent) else 0.0
+    behind_slope = g_behind * inverse_extent if (z_x - z_y >= 0.0) & (z_x - z_y <= extent) else 0.0
+    g_distance, g_speed_y = _cone_grad(distance, speed_y, inverse_y, g_alpha * front)
+    d_distance, g_speed_x = _cone_grad(distance, speed_x, inverse_x, g_alpha * behind)
+    g_distance += d_distance
+    d_distance, d_speed = _cylinder_grad(distance, speed_y, inverse_y, g_alpha * 2.0 * cylinder_x)
+    g_distance += d_distance
+    g_speed_y += d_speed
+    d_distance, d_speed = _cylinder_grad(distance, speed_x, inverse_x, g_alpha * 2.0 * cylinder_y)
+    g_distance += d_distance
+    g_speed_x += d_speed
+    # V[Y] through speed_y = max(|V[Y]|, min_radius).
+    moving = (length_y >= min_radius) & (length_y > 0.0)
+    g_v_yx = g_speed_y * v_yx / length_y if moving else 0.0
+    g_v_yy = g_speed_y * v_yy / length_y if moving else 0.0
+    return alpha, g_v_yx, g_v_yy, behind_slope - front_slope, g_speed_x, front_slope - behind_slope, g_distance
+
+
+@_inline
 def _pixel_state(velocity, depth, neighbors, jitter, b, jb, y, x, tile, min_radius, chunk, p, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s):
     """Pixel X's scratch entries p of chunk `chunk`: its jitter, NeighborMax v_N and |v_N|, V[X],
     |V[X]|, the classifiers' floored inverse speed and Z[X]. Returns the classifiers' speed."""
@@ -156,20 +263,23 @@ def _pixel_state(velocity, depth, neighbors, jitter, b, jb, y, x, tile, min_radi
 
 @_jit
 def _reconstruct_forward(
-    pairs, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, chunks, out, weight,
+    pairs, color_flat, velocity_flat, depth_flat, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, rows, order, chunks, out, weight,
     jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s, weight_s, total_s, index_s, below_s, fx_s, fy_s, alpha_s,
 ):
     """The *_s scratch arrays hold one block per chunk: (chunks, >= _BLOCK), total_s (chunks, C, >= _BLOCK).
-    own_odd is an int (0 or 1): see the note above on aliases."""
+    own_odd and rows are ints (0 or 1): see the note above on aliases. rows = 1: every tap along
+    NeighborMax with a jitter constant per tile (the caller checked), read as shifted rows of the
+    flat images (*_flat; pairs unused); rows = 0: each pixel's tap read from `pairs`."""
     batch, channels, height, width = color.shape
     stored = channels + 3
+    plane = height * width
     jitter_batch = jitter.shape[0]
     inverse_extent = 1.0 / extent
-    rows = batch * height
+    image_rows = batch * height
     last_x = width - 1.0
     last_y = height - 1.0
     for chunk in numba.prange(chunks):
-        for i in range(chunk * rows // chunks, (chunk + 1) * rows // chunks):
+        for i in range(chunk * image_rows // chunks, (chunk + 1) * image_rows // chunks):
             row = order[i]
             b = row // height
             y = row % height
@@ -199,6 +309,46 @@ def _reconstruct_forward(
                 for k in range(count):
                     if k == middle:
                         continue
+                    if rows != 0:  # shifted rows: one offset per tile segment
+                        segment = start
+                        while segment < end:
+                            segment_end = min((segment // tile + 1) * tile, end)
+                            q = segment - start
+                            t = -1.0 + (k + jitter_s[chunk, q] + 1.0) * step
+                            shift_x = nx_s[chunk, q] * t
+                            py = y + ny_s[chunk, q] * t
+                            row0, row1, fy, _, shift, fx, first, last = _shifted_rows(py, shift_x, start, segment, segment_end, height, width, last_y)
+                            distance = abs(t) * speed_n_s[chunk, q]
+                            below = np.uint64((row1 - row0) * width)
+                            top = row0 * width + start + shift  # + u: pixel u's top-left read
+                            top_vx = np.uint64(2 * b * plane + top)
+                            top_vy = np.uint64((2 * b + 1) * plane + top)
+                            top_z = np.uint64(b * plane + top)
+                            for u in range(np.uint64(first), np.uint64(last)):  # vectorized: contiguous reads
+                                v_yx = _row_read(velocity_flat, top_vx + u, below, fx, fy)
+                                v_yy = _row_read(velocity_flat, top_vy + u, below, fx, fy)
+                                z_y = _row_read(depth_flat, top_z + u, below, fx, fy)
+                                alpha = _tap_alpha(z_x_s[chunk, u], z_y, v_yx, v_yy, distance, inverse_x_s[chunk, u], min_radius, extent, inverse_extent)
+                                alpha_s[chunk, u] = alpha
+                                weight_s[chunk, u] += alpha
+                            for c in range(channels):
+                                top_c = np.uint64((b * channels + c) * plane + top)
+                                for u in range(np.uint64(first), np.uint64(last)):  # vectorized
+                                    total_s[chunk, c, u] += alpha_s[chunk, u] * _row_read(color_flat, top_c + u, below, fx, fy)
+                            for p in range(q, segment_end - start):  # the border, clamped: one by one
+                                if p < first or p >= last:
+                                    column, row0, fx, fy, _, _ = _tap_corner((start + p) + shift_x, py, last_x, last_y)
+                                    row1 = min(row0 + 1, height - 1)
+                                    _, _, v_yx = _clamped_read_slopes(velocity_flat, 2 * b * plane, width, row0, row1, column, fx, fy)
+                                    _, _, v_yy = _clamped_read_slopes(velocity_flat, (2 * b + 1) * plane, width, row0, row1, column, fx, fy)
+                                    _, _, z_y = _clamped_read_slopes(depth_flat, b * plane, width, row0, row1, column, fx, fy)
+                                    alpha = _tap_alpha(z_x_s[chunk, p], z_y, v_yx, v_yy, distance, inverse_x_s[chunk, p], min_radius, extent, inverse_extent)
+                                    weight_s[chunk, p] += alpha
+                                    for c in range(channels):
+                                        _, _, c_y = _clamped_read_slopes(color_flat, (b * channels + c) * plane, width, row0, row1, column, fx, fy)
+                                        total_s[chunk, c, p] += alpha * c_y
+                            segment = segment_end
+                        continue
                     own = own_odd * (k % 2)
                     for p in range(size):  # vectorized: no branches, gathers
                         t = -1.0 + (k + jitter_s[chunk, p] + 1.0) * step
@@ -207,24 +357,15 @@ def _reconstruct_forward(
                         speed = length_x_s[chunk, p] if own != 0 else speed_n_s[chunk, p]
                         column, row0, fx, fy, _, _ = _tap_corner((start + p) + dx * t, y + dy * t, last_x, last_y)
                         index = image_start + (row0 * width + column) * stored
-                        below = width * stored if row0 < height - 1 else 0
+                        below_pair = width * stored if row0 < height - 1 else 0
                         index_s[chunk, p] = index
-                        below_s[chunk, p] = below
+                        below_s[chunk, p] = below_pair
                         fx_s[chunk, p] = fx
                         fy_s[chunk, p] = fy
-                        v_yx = _pair_read(pairs, index + channels, below, fx, fy)
-                        v_yy = _pair_read(pairs, index + channels + 1, below, fx, fy)
-                        z_y = _pair_read(pairs, index + channels + 2, below, fx, fy)
-                        length_y = math.sqrt(v_yx * v_yx + v_yy * v_yy)
-                        inverse_y = _floored_inverse(length_y if length_y >= min_radius else min_radius)
-                        inverse_x = inverse_x_s[chunk, p]
-                        z_x = z_x_s[chunk, p]
-                        distance = abs(t) * speed
-                        alpha = (
-                            _soft_depth_compare(z_x, z_y, extent, inverse_extent) * _cone(distance, inverse_y)
-                            + _soft_depth_compare(z_y, z_x, extent, inverse_extent) * _cone(distance, inverse_x)
-                            + _cylinder(distance, inverse_y) * _cylinder(distance, inverse_x) * 2.0
-                        )
+                        v_yx = _pair_read(pairs, index + channels, below_pair, fx, fy)
+                        v_yy = _pair_read(pairs, index + channels + 1, below_pair, fx, fy)
+                        z_y = _pair_read(pairs, index + channels + 2, below_pair, fx, fy)
+                        alpha = _tap_alpha(z_x_s[chunk, p], z_y, v_yx, v_yy, abs(t) * speed, inverse_x_s[chunk, p], min_radius, extent, inverse_extent)
                         alpha_s[chunk, p] = alpha
                         weight_s[chunk, p] += alpha
                     for c in range(channels):
@@ -241,32 +382,126 @@ def _reconstruct_forward(
 
 
 
+@_inline
+def _add_gradient(grads, grads_rows, rows, chunk, b, y, x, k, value, batch, stored, plane, width):
+    """Add value to input channel k's gradient at pixel (y, x) of image b in chunk `chunk`'s buffer:
+    the planar flat `grads_rows` when rows = 1, the interleaved `grads` else."""
+    if rows != 0:
+        grads_rows[((chunk * batch + b) * stored + k) * plane + y * width + x] += value
+    else:
+        grads[chunk, b, y, x, k] += value
+
+
+@_inline
+def _add_shifted(grads_rows, at, below, fx, fy, value_s, chunk, first, last):
+    """Add value_s[chunk, u] for u in [first, last) to the 4 pixels pixel u's tap read (flat indices
+    at + u, at + u + 1 and the same `below`), each with its bilinear weight: one loop per corner, so
+    that no two lanes of a vector add to one pixel."""
+    one = np.uint64(1)
+    weight = (1.0 - fx) * (1.0 - fy)
+    for u in range(np.uint64(first), np.uint64(last)):  # vectorized: contiguous adds
+        grads_rows[at + u] += weight * value_s[chunk, u]
+    weight = fx * (1.0 - fy)
+    for u in range(np.uint64(first), np.uint64(last)):
+        grads_rows[at + one + u] += weight * value_s[chunk, u]
+    weight = (1.0 - fx) * fy
+    for u in range(np.uint64(first), np.uint64(last)):
+        grads_rows[at + below + u] += weight * value_s[chunk, u]
+    weight = fx * fy
+    for u in range(np.uint64(first), np.uint64(last)):
+        grads_rows[at + below + one + u] += weight * value_s[chunk, u]
+
+
+@_inline
+def _scatter_flat(grads_rows, at, width, row0, row1, column0, column1, fx, fy, grad):
+    """`_scatter_chunk` into the planar flat buffer, `at` the index of the plane's first pixel."""
+    grads_rows[at + row0 * width + column0] += grad * (1.0 - fx) * (1.0 - fy)
+    grads_rows[at + row0 * width + column1] += grad * fx * (1.0 - fy)
+    grads_rows[at + row1 * width + column0] += grad * (1.0 - fx) * fy
+    grads_rows[at + row1 * width + column1] += grad * fx * fy
+
+
+@_inline
+def _border_tap_backward(
+    color_flat, velocity_flat, depth_flat, grads_rows, color, b, chunk, p, px, py, t, distance, min_radius, extent, scatter_color, scatter_velocity, scatter_depth,
+    g_total_s, out_s, z_x_s, speed_x_s, inverse_x_s, g_speed_x_s, g_z_x_s, g_nx_s, g_ny_s, g_speed_n_s,
+):
+    """One pixel's tap on the shifted rows' clamped border, the general path's arithmetic: the
+    classifiers' derivatives into the pixel's sums, the reads' gradients into grads_rows. Fewer
+    than 30 arguments: past that Python passes them as *args, which numba cannot inline."""
+    batch, channels, height, width = color.shape
+    last_x = width - 1.0
+    last_y = height - 1.0
+    inverse_extent = 1.0 / extent
+    plane = height * width
+    stored = channels + 3
+    column, row0, fx, fy, inside_x, inside_y = _tap_corner(px, py, last_x, last_y)
+    row1 = min(row0 + 1, height - 1)
+    column1 = min(column + 1, width - 1)
+    g_alpha = 0.0
+    slope_x = 0.0
+    slope_y = 0.0
+    for c in range(channels):
+        d_x, d_y, c_y = _clamped_read_slopes(color_flat, (b * channels + c) * plane, width, row0, row1, column, fx, fy)
+        g_total = g_total_s[chunk, c, p]
+        g_alpha += g_total * (c_y - out_s[chunk, c, p])
+        slope_x += g_total * d_x
+        slope_y += g_total * d_y
+    slope_vxx, slope_vxy, v_yx = _clamped_read_slopes(velocity_flat, 2 * b * plane, width, row0, row1, column, fx, fy)
+    slope_vyx, slope_vyy, v_yy = _clamped_read_slopes(velocity_flat, (2 * b + 1) * plane, width, row0, row1, column, fx, fy)
+    slope_zx, slope_zy, z_y = _clamped_read_slopes(depth_flat, b * plane, width, row0, row1, column, fx, fy)
+    alpha, g_v_yx, g_v_yy, g_z_y, g_speed_x, g_z_x, g_distance = _tap_gradients(
+        z_x_s[chunk, p], speed_x_s[chunk, p], inverse_x_s[chunk, p], distance, g_alpha, v_yx, v_yy, z_y, min_radius, extent, inverse_extent
+    )
+    g_fx = alpha * slope_x + g_v_yx * slope_vxx + g_v_yy * slope_vyx + g_z_y * slope_zx
+    g_fy = alpha * slope_y + g_v_yx * slope_vxy + g_v_yy * slope_vyy + g_z_y * slope_zy
+    g_speed_x_s[chunk, p] += g_speed_x
+    g_z_x_s[chunk, p] += g_z_x
+    g_nx_s[chunk, p] += g_fx * t * inside_x
+    g_ny_s[chunk, p] += g_fy * t * inside_y
+    g_speed_n_s[chunk, p] += g_distance * abs(t)
+    image = (chunk * batch + b) * stored * plane
+    if scatter_color != 0:
+        for c in range(channels):
+            _scatter_flat(grads_rows, image + c * plane, width, row0, row1, column, column1, fx, fy, alpha * g_total_s[chunk, c, p])
+    if scatter_velocity != 0:
+        _scatter_flat(grads_rows, image + channels * plane, width, row0, row1, column, column1, fx, fy, g_v_yx)
+        _scatter_flat(grads_rows, image + (channels + 1) * plane, width, row0, row1, column, column1, fx, fy, g_v_yy)
+    if scatter_depth != 0:
+        _scatter_flat(grads_rows, image + (channels + 2) * plane, width, row0, row1, column, column1, fx, fy, g_z_y)
+
+
 @_jit
 def _reconstruct_backward(
-    pairs, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, scatter_color, scatter_velocity, scatter_depth,
-    out, weight, grad_out, grads, grad_neighbors,
+    pairs, color_flat, velocity_flat, depth_flat, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, rows, order,
+    scatter_color, scatter_velocity, scatter_depth, out, weight, grad_out, grads, grads_rows, grad_neighbors,
     jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, g_total_s, out_s,
     column_s, row_s, t_s, fx_s, fy_s, inside_x_s, inside_y_s, g_alpha_s, slope_x_s, slope_y_s, alpha_s, g_v_yx_s, g_v_yy_s, g_z_y_s,
-    g_speed_x_s, g_z_x_s, g_vx_s, g_vy_s, g_length_x_s, g_nx_s, g_ny_s, g_speed_n_s,
+    g_speed_x_s, g_z_x_s, g_vx_s, g_vy_s, g_length_x_s, g_nx_s, g_ny_s, g_speed_n_s, value_s,
 ):
-    """The forward's layout (pairs, blocks of one row as vectors, scratch arguments) for the hand-written
-    backward. Per tap index k: one vector loop places the taps, one per channel reads the colours, one
-    runs the classifiers' derivatives; then a scalar loop scatters the gradients of the 4 pixels each
-    tap read (lanes may collide, so it cannot be a vector scatter), for the inputs whose scatter_* flag
-    is 1 (ints: see the note above on aliases); the other inputs' gradients come out incomplete.
-    grads: (chunks, B, H, W, C + 3) zeros, one buffer per chunk of rows (C, V, Z gradients
-    interleaved); grad_neighbors: (chunks, B, 2, TH, TW) zeros; *_s scratch: (chunks, >= _BLOCK), g_total_s
-    and out_s (chunks, C, >= _BLOCK)."""
+    """The forward's layout (blocks of one row as vectors, scratch arguments) for the hand-written
+    backward, for the inputs whose scatter_* flag is 1 (ints: see the note above on aliases); the
+    other inputs' gradients come out incomplete. grad_neighbors: (chunks, B, 2, TH, TW) zeros;
+    *_s scratch: (chunks, >= _BLOCK), g_total_s and out_s (chunks, C, >= _BLOCK).
+
+    rows = 0, per pixel (pairs): per tap index k one vector loop places the taps, one per channel
+    reads the colours, one runs the classifiers' derivatives; then a scalar loop scatters the
+    gradients of the 4 pixels each tap read (lanes may collide, so it cannot be a vector scatter)
+    into grads, (chunks, B, H, W, C + 3) zeros, one buffer per chunk of rows (C, V, Z gradients
+    interleaved). rows = 1, shifted rows (*_flat): the same loops per tile segment on contiguous
+    reads, and the scatter as four contiguous vector adds (`_add_shifted`) into grads_rows, the flat
+    (chunks, B, C + 3, H, W) zeros."""
     batch, channels, height, width = color.shape
     stored = channels + 3
+    plane = height * width
     jitter_batch = jitter.shape[0]
     inverse_extent = 1.0 / extent
-    chunks = grads.shape[0]
-    rows = batch * height
+    chunks = grad_neighbors.shape[0]
+    image_rows = batch * height
     last_x = width - 1.0
     last_y = height - 1.0
     for chunk in numba.prange(chunks):
-        for i in range(chunk * rows // chunks, (chunk + 1) * rows // chunks):
+        for i in range(chunk * image_rows // chunks, (chunk + 1) * image_rows // chunks):
             row = order[i]
             b = row // height
             y = row % height
@@ -280,7 +515,7 @@ def _reconstruct_backward(
                 if count == 0:  # the early-out: out = C[X]
                     for x in range(start, end):
                         for c in range(channels):
-                            grads[chunk, b, y, x, c] += grad_out[b, c, y, x]
+                            _add_gradient(grads, grads_rows, rows, chunk, b, y, x, c, grad_out[b, c, y, x], batch, stored, plane, width)
                     start = end
                     continue
                 for p in range(size):
@@ -296,7 +531,7 @@ def _reconstruct_backward(
                         g_total_s[chunk, c, p] = g_total
                         out_s[chunk, c, p] = out[b, c, y, x]
                         g_center += g_total * (color[b, c, y, x] - out[b, c, y, x])
-                        grads[chunk, b, y, x, c] += g_total / speed_x
+                        _add_gradient(grads, grads_rows, rows, chunk, b, y, x, c, g_total / speed_x, batch, stored, plane, width)
                     g_speed_x_s[chunk, p] = -g_center / (speed_x * speed_x)
                     g_z_x_s[chunk, p] = 0.0
                     g_vx_s[chunk, p] = 0.0
@@ -309,6 +544,71 @@ def _reconstruct_backward(
                 step = 2.0 / (count + 1.0)
                 for k in range(count):
                     if k == middle:
+                        continue
+                    if rows != 0:  # shifted rows: one offset per tile segment
+                        segment = start
+                        while segment < end:
+                            segment_end = min((segment // tile + 1) * tile, end)
+                            q = segment - start
+                            t = -1.0 + (k + jitter_s[chunk, q] + 1.0) * step
+                            shift_x = nx_s[chunk, q] * t
+                            py = y + ny_s[chunk, q] * t
+                            row0, row1, fy, inside_y, shift, fx, first, last = _shifted_rows(py, shift_x, start, segment, segment_end, height, width, last_y)
+                            distance = abs(t) * speed_n_s[chunk, q]
+                            along = abs(t)
+                            below = np.uint64((row1 - row0) * width)
+                            top = row0 * width + start + shift  # + u: pixel u's top-left read
+                            top_vx = np.uint64(2 * b * plane + top)
+                            top_vy = np.uint64((2 * b + 1) * plane + top)
+                            top_z = np.uint64(b * plane + top)
+                            for u in range(np.uint64(first), np.uint64(last)):
+                                g_alpha_s[chunk, u] = 0.0
+                                slope_x_s[chunk, u] = 0.0
+                                slope_y_s[chunk, u] = 0.0
+                            for c in range(channels):
+                                top_c = np.uint64((b * channels + c) * plane + top)
+                                for u in range(np.uint64(first), np.uint64(last)):  # vectorized: the colours read
+                                    d_x, d_y, c_y = _row_read_slopes(color_flat, top_c + u, below, fx, fy)
+                                    g_total = g_total_s[chunk, c, u]
+                                    g_alpha_s[chunk, u] += g_total * (c_y - out_s[chunk, c, u])
+                                    slope_x_s[chunk, u] += g_total * d_x  # times alpha below
+                                    slope_y_s[chunk, u] += g_total * d_y
+                            for u in range(np.uint64(first), np.uint64(last)):  # vectorized: the classifiers
+                                slope_vxx, slope_vxy, v_yx = _row_read_slopes(velocity_flat, top_vx + u, below, fx, fy)
+                                slope_vyx, slope_vyy, v_yy = _row_read_slopes(velocity_flat, top_vy + u, below, fx, fy)
+                                slope_zx, slope_zy, z_y = _row_read_slopes(depth_flat, top_z + u, below, fx, fy)
+                                alpha, g_v_yx, g_v_yy, g_z_y, g_speed_x, g_z_x, g_distance = _tap_gradients(
+                                    z_x_s[chunk, u], speed_x_s[chunk, u], inverse_x_s[chunk, u], distance, g_alpha_s[chunk, u], v_yx, v_yy, z_y, min_radius, extent, inverse_extent
+                                )
+                                g_fx = alpha * slope_x_s[chunk, u] + g_v_yx * slope_vxx + g_v_yy * slope_vyx + g_z_y * slope_zx
+                                g_fy = alpha * slope_y_s[chunk, u] + g_v_yx * slope_vxy + g_v_yy * slope_vyy + g_z_y * slope_zy
+                                alpha_s[chunk, u] = alpha
+                                g_v_yx_s[chunk, u] = g_v_yx
+                                g_v_yy_s[chunk, u] = g_v_yy
+                                g_z_y_s[chunk, u] = g_z_y
+                                g_speed_x_s[chunk, u] += g_speed_x
+                                g_z_x_s[chunk, u] += g_z_x
+                                g_nx_s[chunk, u] += g_fx * t  # an interior tap: its x is not clamped
+                                g_ny_s[chunk, u] += g_fy * t * inside_y
+                                g_speed_n_s[chunk, u] += g_distance * along
+                            image = (chunk * batch + b) * stored * plane + top
+                            if scatter_color != 0:
+                                for c in range(channels):
+                                    for u in range(np.uint64(first), np.uint64(last)):
+                                        value_s[chunk, u] = alpha_s[chunk, u] * g_total_s[chunk, c, u]
+                                    _add_shifted(grads_rows, np.uint64(image + c * plane), below, fx, fy, value_s, chunk, first, last)
+                            if scatter_velocity != 0:
+                                _add_shifted(grads_rows, np.uint64(image + channels * plane), below, fx, fy, g_v_yx_s, chunk, first, last)
+                                _add_shifted(grads_rows, np.uint64(image + (channels + 1) * plane), below, fx, fy, g_v_yy_s, chunk, first, last)
+                            if scatter_depth != 0:
+                                _add_shifted(grads_rows, np.uint64(image + (channels + 2) * plane), below, fx, fy, g_z_y_s, chunk, first, last)
+                            for p in range(q, segment_end - start):  # the border, clamped: one by one
+                                if p < first or p >= last:
+                                    _border_tap_backward(
+                                        color_flat, velocity_flat, depth_flat, grads_rows, color, b, chunk, p, (start + p) + shift_x, py, t, distance, min_radius, extent, scatter_color, scatter_velocity, scatter_depth,
+                                        g_total_s, out_s, z_x_s, speed_x_s, inverse_x_s, g_speed_x_s, g_z_x_s, g_nx_s, g_ny_s, g_speed_n_s,
+                                    )
+                            segment = segment_end
                         continue
                     own = own_odd * (k % 2)
                     for p in range(size):  # vectorized: the taps' positions
@@ -330,56 +630,26 @@ def _reconstruct_backward(
                         for p in range(size):  # vectorized: the colours read
                             row0 = row_s[chunk, p]
                             index = image_start + (row0 * width + column_s[chunk, p]) * stored + c
-                            below = width * stored if row0 < height - 1 else 0
-                            slope_x, slope_y, c_y = _pair_read_slopes(pairs, index, below, fx_s[chunk, p], fy_s[chunk, p])
+                            below_pair = width * stored if row0 < height - 1 else 0
+                            d_x, d_y, c_y = _pair_read_slopes(pairs, index, below_pair, fx_s[chunk, p], fy_s[chunk, p])
                             g_total = g_total_s[chunk, c, p]
                             g_alpha_s[chunk, p] += g_total * (c_y - out_s[chunk, c, p])
-                            slope_x_s[chunk, p] += g_total * slope_x  # times alpha below
-                            slope_y_s[chunk, p] += g_total * slope_y
+                            slope_x_s[chunk, p] += g_total * d_x  # times alpha below
+                            slope_y_s[chunk, p] += g_total * d_y
                     for p in range(size):  # vectorized: the classifiers and their derivatives
                         row0 = row_s[chunk, p]
                         index = image_start + (row0 * width + column_s[chunk, p]) * stored + channels
-                        below = width * stored if row0 < height - 1 else 0
+                        below_pair = width * stored if row0 < height - 1 else 0
                         fx = fx_s[chunk, p]
                         fy = fy_s[chunk, p]
                         t = t_s[chunk, p]
-                        slope_vxx, slope_vxy, v_yx = _pair_read_slopes(pairs, index, below, fx, fy)
-                        slope_vyx, slope_vyy, v_yy = _pair_read_slopes(pairs, index + 1, below, fx, fy)
-                        slope_zx, slope_zy, z_y = _pair_read_slopes(pairs, index + 2, below, fx, fy)
-                        length_y = math.sqrt(v_yx * v_yx + v_yy * v_yy)
-                        speed_y = length_y if length_y >= min_radius else min_radius
-                        inverse_y = _floored_inverse(speed_y)
-                        speed_x = speed_x_s[chunk, p]
-                        inverse_x = inverse_x_s[chunk, p]
-                        z_x = z_x_s[chunk, p]
+                        slope_vxx, slope_vxy, v_yx = _pair_read_slopes(pairs, index, below_pair, fx, fy)
+                        slope_vyx, slope_vyy, v_yy = _pair_read_slopes(pairs, index + 1, below_pair, fx, fy)
+                        slope_zx, slope_zy, z_y = _pair_read_slopes(pairs, index + 2, below_pair, fx, fy)
                         distance = abs(t) * (length_x_s[chunk, p] if own != 0 else speed_n_s[chunk, p])
-                        front = _soft_depth_compare(z_x, z_y, extent, inverse_extent)
-                        behind = _soft_depth_compare(z_y, z_x, extent, inverse_extent)
-                        cone_y = _cone(distance, inverse_y)
-                        cone_x = _cone(distance, inverse_x)
-                        cylinder_y = _cylinder(distance, inverse_y)
-                        cylinder_x = _cylinder(distance, inverse_x)
-                        alpha = front * cone_y + behind * cone_x + cylinder_y * cylinder_x * 2.0
-                        g_alpha = g_alpha_s[chunk, p]
-                        # The classifiers.
-                        g_front = g_alpha * cone_y
-                        g_behind = g_alpha * cone_x
-                        front_slope = g_front * inverse_extent if (z_y - z_x >= 0.0) & (z_y - z_x <= extent) else 0.0
-                        behind_slope = g_behind * inverse_extent if (z_x - z_y >= 0.0) & (z_x - z_y <= extent) else 0.0
-                        g_z_y = behind_slope - front_slope
-                        g_distance, g_speed_y = _cone_grad(distance, speed_y, inverse_y, g_alpha * front)
-                        d_distance, g_speed_x = _cone_grad(distance, speed_x, inverse_x, g_alpha * behind)
-                        g_distance += d_distance
-                        d_distance, d_speed = _cylinder_grad(distance, speed_y, inverse_y, g_alpha * 2.0 * cylinder_x)
-                        g_distance += d_distance
-                        g_speed_y += d_speed
-                        d_distance, d_speed = _cylinder_grad(distance, speed_x, inverse_x, g_alpha * 2.0 * cylinder_y)
-                        g_distance += d_distance
-                        g_speed_x += d_speed
-                        # V[Y] through speed_y = max(|V[Y]|, min_radius).
-                        moving = (length_y >= min_radius) & (length_y > 0.0)
-                        g_v_yx = g_speed_y * v_yx / length_y if moving else 0.0
-                        g_v_yy = g_speed_y * v_yy / length_y if moving else 0.0
+                        alpha, g_v_yx, g_v_yy, g_z_y, g_speed_x, g_z_x, g_distance = _tap_gradients(
+                            z_x_s[chunk, p], speed_x_s[chunk, p], inverse_x_s[chunk, p], distance, g_alpha_s[chunk, p], v_yx, v_yy, z_y, min_radius, extent, inverse_extent
+                        )
                         g_fx = alpha * slope_x_s[chunk, p] + g_v_yx * slope_vxx + g_v_yy * slope_vyx + g_z_y * slope_zx
                         g_fy = alpha * slope_y_s[chunk, p] + g_v_yx * slope_vxy + g_v_yy * slope_vyy + g_z_y * slope_zy
                         # The tap position X + direction t (no gradient where clamped) and the
@@ -392,7 +662,7 @@ def _reconstruct_backward(
                         g_v_yy_s[chunk, p] = g_v_yy
                         g_z_y_s[chunk, p] = g_z_y
                         g_speed_x_s[chunk, p] += g_speed_x
-                        g_z_x_s[chunk, p] += front_slope - behind_slope
+                        g_z_x_s[chunk, p] += g_z_x
                         g_vx_s[chunk, p] += g_dx * own
                         g_vy_s[chunk, p] += g_dy * own
                         g_length_x_s[chunk, p] += g_along * own
@@ -432,12 +702,30 @@ def _reconstruct_backward(
                     if speed_n > 0.0:
                         g_nx += g_speed_n_s[chunk, p] * nx_s[chunk, p] / speed_n
                         g_ny += g_speed_n_s[chunk, p] * ny_s[chunk, p] / speed_n
-                    grads[chunk, b, y, x, channels] += g_vx
-                    grads[chunk, b, y, x, channels + 1] += g_vy
-                    grads[chunk, b, y, x, channels + 2] += g_z_x_s[chunk, p]
+                    _add_gradient(grads, grads_rows, rows, chunk, b, y, x, channels, g_vx, batch, stored, plane, width)
+                    _add_gradient(grads, grads_rows, rows, chunk, b, y, x, channels + 1, g_vy, batch, stored, plane, width)
+                    _add_gradient(grads, grads_rows, rows, chunk, b, y, x, channels + 2, g_z_x_s[chunk, p], batch, stored, plane, width)
                     grad_neighbors[chunk, b, 0, y // tile, x // tile] += g_nx
                     grad_neighbors[chunk, b, 1, y // tile, x // tile] += g_ny
                 start = end
+
+
+@_jit
+def _sum_planar_chunks(grads_rows, out):
+    """Sum the flat (chunks, B, K, H, W) per-chunk gradient buffers into out (B, K, H, W)."""
+    batch, channels, height, width = out.shape
+    size = batch * channels * height * width
+    chunks = grads_rows.shape[0] // size
+    for row in numba.prange(batch * channels * height):
+        b = row // (channels * height)
+        c = (row // height) % channels
+        y = row % height
+        start = row * width
+        for x in range(width):
+            total = 0.0
+            for chunk in range(chunks):
+                total += grads_rows[chunk * size + start + x]
+            out[b, c, y, x] = total
 
 
 class ReconstructForwardScratch(NamedTuple):
@@ -502,10 +790,27 @@ class ReconstructBackwardScratch(NamedTuple):
     g_nx: Floats
     g_ny: Floats
     g_speed_n: Floats
+    value: Floats
 
 
 check_scratch(_reconstruct_forward, ReconstructForwardScratch)
 check_scratch(_reconstruct_backward, ReconstructBackwardScratch)
+
+
+def shifted_rows(jitter: np.ndarray, tile: int, own_odd: bool) -> bool:
+    """Whether the kernels read every tap as a shifted row: all taps along NeighborMax (not
+    directions="neighbor_and_own") and the jitter (B or 1, 1, H, W) constant over each tile's part
+    of a row (jitter="none" is), so that each tile takes tap k at one offset v_N t_k."""
+    if own_odd:
+        return False
+    same = jitter[..., 1:] == jitter[..., :-1]
+    same[..., tile - 1 :: tile] = True  # neighbours in different tiles may differ
+    return bool(same.all())
+
+
+def _no_pairs(color: np.ndarray) -> np.ndarray:
+    """An empty pairs buffer of `_pairs`' type for `color`, for kernels that read shifted rows."""
+    return np.empty(0, dtype=np.uint64 if color.dtype == np.float32 else color.dtype)
 
 
 def reconstruct_forward(
@@ -530,9 +835,12 @@ def reconstruct_forward(
     out = np.empty_like(color)
     weight = np.empty((batch, height, width), dtype=color.dtype)
     chunks = min(batch * height, _threads())
-    settings = (int(tile), float(soft_z_extent), float(min_radius), int(own_odd), row_order(batch * height), chunks)
+    rows = shifted_rows(jitter, tile, own_odd)
+    settings = (int(tile), float(soft_z_extent), float(min_radius), int(own_odd), int(rows), row_order(batch * height), chunks)
     scratch = scratch_for(ReconstructForwardScratch, chunks, channels)
-    _reconstruct_forward(_pairs(color, velocity, depth), color, velocity, depth, neighbors, counts, jitter, *settings, out, weight, *scratch)
+    pairs = _no_pairs(color) if rows else _pairs(color, velocity, depth)
+    flats = (color.reshape(-1), velocity.reshape(-1), depth.reshape(-1))
+    _reconstruct_forward(pairs, *flats, color, velocity, depth, neighbors, counts, jitter, *settings, out, weight, *scratch)
     return out, weight
 
 
@@ -595,13 +903,24 @@ def reconstruct_backward_stacked(
     color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out = read_only(color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out)
     batch, channels, height, width = color.shape
     chunks = min(_threads(), batch * height)
-    grads = np.zeros((chunks, batch, height, width, channels + 3), dtype=color.dtype)
+    rows = shifted_rows(jitter, tile, own_odd)
+    stored = channels + 3
+    if rows:
+        grads = np.zeros((chunks, 0, 0, 0, stored), dtype=color.dtype)
+        grads_rows = np.zeros(chunks * batch * stored * height * width, dtype=color.dtype)
+    else:
+        grads = np.zeros((chunks, batch, height, width, stored), dtype=color.dtype)
+        grads_rows = np.zeros(0, dtype=color.dtype)
     grad_neighbors = np.zeros((chunks, *neighbors.shape), dtype=color.dtype)
     need_color, need_velocity, need_depth = (bool(need) for need in needs)
-    settings = (int(tile), float(soft_z_extent), float(min_radius), int(own_odd), row_order(batch * height), int(need_color), int(need_velocity), int(need_depth))
+    settings = (int(tile), float(soft_z_extent), float(min_radius), int(own_odd), int(rows), row_order(batch * height), int(need_color), int(need_velocity), int(need_depth))
     scratch = scratch_for(ReconstructBackwardScratch, chunks, channels)
-    arrays = (_pairs(color, velocity, depth), color, velocity, depth, neighbors, counts, jitter)
-    _reconstruct_backward(*arrays, *settings, out, weight, grad_out, grads, grad_neighbors, *scratch)
-    total = np.empty((batch, channels + 3, height, width), dtype=color.dtype)
-    _deinterleave_sum(grads, total)
+    pairs = _no_pairs(color) if rows else _pairs(color, velocity, depth)
+    arrays = (pairs, color.reshape(-1), velocity.reshape(-1), depth.reshape(-1), color, velocity, depth, neighbors, counts, jitter)
+    _reconstruct_backward(*arrays, *settings, out, weight, grad_out, grads, grads_rows, grad_neighbors, *scratch)
+    total = np.empty((batch, stored, height, width), dtype=color.dtype)
+    if rows:
+        _sum_planar_chunks(grads_rows, total)
+    else:
+        _deinterleave_sum(grads, total)
     return total, grad_neighbors.sum(axis=0) if need_velocity else None
