@@ -10,7 +10,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-__all__ = ["BLUR_OPTIONS", "CANDIDATES", "INPUTS", "LEVELS", "RADIUS", "SHARPNESS", "MIRROR", "MOTION_CHANNELS", "TrainConfig", "augment", "batches", "check_size", "learning_rate", "motion_paths", "shutter_batches", "training_loop"]
+__all__ = ["BLUR_OPTIONS", "CANDIDATES", "INPUTS", "LEVELS", "RADIUS", "SHARPNESS", "MIRROR", "MOTION_CHANNELS", "SMOOTHNESS", "EDGE", "TrainConfig", "smoothness", "augment", "batches", "check_size", "learning_rate", "motion_paths", "shutter_batches", "training_loss", "training_loop"]
 
 #: Poolings in the U-Net: H and W must be multiples of 2^LEVELS.
 LEVELS = 3
@@ -34,6 +34,30 @@ BLUR_OPTIONS = {
 }
 #: The index in data.SHUTTERS of each window played backwards (a ramp's slope changes sign).
 MIRROR = (0, 1, 3, 2)
+#: The weight of the motion prior in the training loss (`smoothness`): loss = mean squared error of the
+#: blur + SMOOTHNESS x the total variation of the predicted motion. Chosen on the validation split
+#: (`data.VALIDATION`, examples of the training seed that no training run reads), see README.md.
+SMOOTHNESS = 3e-3
+#: The edge-aware variant's strength (`smoothness(..., image, edge=EDGE)`): 0 weighs every pair of
+#: neighbours alike.
+EDGE = 0.0
+
+
+def smoothness(motion, image=None, *, edge: float = EDGE):
+    """The motion prior: the total variation of the motion (B, C, H, W), in pixels, the mean over channels
+    and pixels of |m(x + 1, y) - m(x, y)| plus that of |m(x, y + 1) - m(x, y)|. Plain array arithmetic,
+    the same formula for PyTorch tensors, JAX and NumPy arrays.
+
+    The blur alone rewards unphysical per-pixel motion (any path whose blur matches, pixel by pixel);
+    objects move as wholes, so the prior favours motion that is constant over a neighbourhood, and L1
+    lets it change at once at an object's edge. With `edge` > 0 and `image` (B, 3, H, W), a pair of
+    neighbours counts 1 / (1 + edge x |image difference|, mean over colour), less across colour edges."""
+    dx = abs(motion[..., :, 1:] - motion[..., :, :-1])
+    dy = abs(motion[..., 1:, :] - motion[..., :-1, :])
+    if edge and image is not None:
+        dx = dx / (1.0 + edge * abs(image[..., :, 1:] - image[..., :, :-1]).mean(1)[:, None])
+        dy = dy / (1.0 + edge * abs(image[..., 1:, :] - image[..., :-1, :]).mean(1)[:, None])
+    return dx.mean() + dy.mean()
 
 
 @dataclass(frozen=True)
@@ -48,6 +72,10 @@ class TrainConfig:
     residual: bool = True
     batch: int = 8
     lr: float = 1e-3
+    #: The prior's weight in the loss (`smoothness`, `SMOOTHNESS`); 0: the blur's error alone.
+    smoothness: float = SMOOTHNESS
+    #: The prior's edge-awareness (`EDGE`); 0: every pair of neighbours alike.
+    edge: float = EDGE
     minutes: float = 4.0
     steps: int = 100_000
     seed: int = 0
@@ -82,6 +110,14 @@ def learning_rate(peak: float, progress: float) -> float:
 def linear_motion(motion: str, velocity, concatenate):
     """Block matching's velocity as the network's base motion: offsets (-v, +v) or v itself."""
     return concatenate([-velocity, velocity]) if motion == "offsets" else velocity
+
+
+def training_loss(blur_error, motion, color, config: "TrainConfig"):
+    """What both frameworks minimise: the blur's mean squared error `blur_error` plus the motion prior
+    on the predicted `motion` (the edge-aware variant reads the middle frame `color`)."""
+    if not config.smoothness:
+        return blur_error
+    return blur_error + config.smoothness * smoothness(motion, color, edge=config.edge)
 
 
 def motion_paths(method: str, motion: str, predicted) -> dict:

@@ -41,11 +41,14 @@ from diffblur.scenes import (
 )
 from diffblur.shutters import LinearRamp, get_shutter
 
-__all__ = ["FIELDS", "SHUTTERS", "TEST_SEED", "TRAIN_SEED", "dataset", "random_scene", "render_example"]
+__all__ = ["FIELDS", "SHUTTERS", "TEST_SEED", "TRAIN_SEED", "VALIDATION", "dataset", "random_scene", "render_example"]
 
 #: The training scenes' seed, and the test scenes' (used for nothing else in the repository).
 TRAIN_SEED = 24_101
 TEST_SEED = 24_977_003
+#: The validation split that chose the training options (`validate.py`): (start, count) of TRAIN_SEED's
+#: examples, after the 768 the training runs read. The test scenes were never used to choose anything.
+VALIDATION = (768, 64)
 #: Shutter windows the examples are rendered under; the blur layer is given the example's window.
 SHUTTERS = ("box", "tent", LinearRamp(0.8), LinearRamp(-0.8))
 #: Arrays of a dataset, each (N, C, H, W) float32 but `shutter` (N,) int, an index into SHUTTERS.
@@ -131,9 +134,9 @@ def render_example(scene: Scene, shutter) -> dict[str, np.ndarray]:
     return {name: np.asarray(value, dtype=np.float32) for name, value in arrays.items()}
 
 
-def _generate(seed: int, count: int, size: int, max_speed: float | None) -> dict[str, np.ndarray]:
+def _generate(seed: int, count: int, size: int, max_speed: float | None, start: int = 0) -> dict[str, np.ndarray]:
     # Example k draws from its own child generator: example k does not depend on `count`.
-    children = np.random.SeedSequence(seed).spawn(count)
+    children = np.random.SeedSequence(seed).spawn(start + count)[start:]
     parts: dict[str, list[np.ndarray]] = {name: [] for name in FIELDS}
     for child in children:
         rng = np.random.default_rng(child)
@@ -145,10 +148,13 @@ def _generate(seed: int, count: int, size: int, max_speed: float | None) -> dict
     return {name: np.concatenate(values) for name, values in parts.items()}
 
 
-def dataset(seed: int, count: int, size: int, *, max_speed: float | None = None, cache: str | Path | None = None, log=print) -> dict[str, np.ndarray]:
-    """`count` examples at size x size drawn from `seed` (FIELDS). With `cache` (a folder), the arrays are
-    kept there in an .npz named by the arguments and read back on the next call."""
-    key = json.dumps({"seed": seed, "count": count, "size": size, "max_speed": max_speed, "version": 2}, sort_keys=True)
+def dataset(seed: int, count: int, size: int, *, start: int = 0, max_speed: float | None = None, cache: str | Path | None = None, log=print) -> dict[str, np.ndarray]:
+    """`count` examples at size x size drawn from `seed` (FIELDS): examples start ... start + count - 1
+    of that seed (`start` > 0 skips the first ones: the validation split, `VALIDATION`, is examples 768
+    on of TRAIN_SEED, which no training run reads). With `cache` (a folder), the arrays are kept there
+    in an .npz named by the arguments and read back on the next call."""
+    fields = {"seed": seed, "count": count, "size": size, "max_speed": max_speed, "version": 2}
+    key = json.dumps(fields | ({"start": start} if start else {}), sort_keys=True)
     path = None
     if cache is not None:
         path = Path(cache) / f"learn_motion_{hashlib.sha256(key.encode()).hexdigest()[:16]}.npz"
@@ -156,7 +162,7 @@ def dataset(seed: int, count: int, size: int, *, max_speed: float | None = None,
             with np.load(path) as stored:
                 return {name: stored[name] for name in FIELDS}
     started = time.perf_counter()
-    arrays = _generate(seed, count, size, max_speed)
+    arrays = _generate(seed, count, size, max_speed, start)
     if log is not None:
         log(f"rendered {count} scenes at {size}x{size} (seed {seed}) in {time.perf_counter() - started:.1f} s")
     if path is not None:

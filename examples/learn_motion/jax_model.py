@@ -14,7 +14,7 @@ import numpy as np
 import optax
 
 import jax_impl
-from examples.learn_motion.common import BLUR_OPTIONS, CANDIDATES, INPUTS, LEVELS, RADIUS, SHARPNESS, linear_motion, MOTION_CHANNELS, TrainConfig, check_size, motion_paths, shutter_batches, training_loop
+from examples.learn_motion.common import BLUR_OPTIONS, CANDIDATES, INPUTS, LEVELS, RADIUS, SHARPNESS, linear_motion, MOTION_CHANNELS, TrainConfig, check_size, motion_paths, shutter_batches, training_loop, training_loss
 from examples.learn_motion.data import SHUTTERS
 
 __all__ = ["MotionNet", "UNet", "block_matching", "from_torch", "loss_fn", "make_model", "matching_costs", "predict", "train", "train_step"]
@@ -150,16 +150,18 @@ def from_torch(state: dict, config: TrainConfig, dtype=jnp.float32) -> MotionNet
     return eqx.tree_at(lambda m: m.unet, model, unet)
 
 
-def loss_fn(model: MotionNet, frames, color, depth, target, shutter: int):
-    """Mean squared error of the blurred middle frame against the blurred target."""
-    blurred, _ = model(frames, color, depth, shutter)
-    return jnp.mean((blurred - target) ** 2)
+def loss_fn(model: MotionNet, frames, color, depth, target, shutter: int, config: TrainConfig = TrainConfig()):
+    """`torch_model.loss_fn`: the mean squared error of the blurred middle frame against the blurred
+    target, plus config.smoothness x the total variation of the predicted motion (`common.training_loss`)."""
+    blurred, motion = model(frames, color, depth, shutter)
+    return training_loss(jnp.mean((blurred - target) ** 2), motion, color, config)
 
 
 @eqx.filter_jit
-def train_step(model, state, optimizer, frames, color, depth, target, shutter: int, lr):
-    """One Adam step (the learning rate `lr` is data, so that the schedule does not recompile)."""
-    loss, grads = eqx.filter_value_and_grad(loss_fn)(model, frames, color, depth, target, shutter)
+def train_step(model, state, optimizer, frames, color, depth, target, shutter: int, lr, config: TrainConfig = TrainConfig()):
+    """One Adam step on `loss_fn` (the learning rate `lr` is data, so that the schedule does not
+    recompile; `config`, a static dataclass, gives the prior's weight)."""
+    loss, grads = eqx.filter_value_and_grad(loss_fn)(model, frames, color, depth, target, shutter, config)
     state.hyperparams["learning_rate"] = lr
     updates, state = optimizer.update(grads, state, eqx.filter(model, eqx.is_inexact_array))
     return eqx.apply_updates(model, updates), state, loss
@@ -182,7 +184,7 @@ def train(data: dict, config: TrainConfig, *, log=print, dtype=jnp.float32) -> t
 
     def step(arrays: dict, shutter: int, lr: float) -> float:
         frames, color, depth, target = (jnp.asarray(arrays[name], dtype=dtype) for name in ("frames", "color", "depth", "target"))
-        carry["model"], carry["state"], loss = train_step(carry["model"], carry["state"], optimizer, frames, color, depth, target, shutter, jnp.asarray(lr, dtype=dtype))
+        carry["model"], carry["state"], loss = train_step(carry["model"], carry["state"], optimizer, frames, color, depth, target, shutter, jnp.asarray(lr, dtype=dtype), config)
         return float(loss)
 
     history = training_loop(data, config, step, label="jax", log=log)

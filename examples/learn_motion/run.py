@@ -123,6 +123,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--batch", type=int, default=8)
     parser.add_argument("--width", type=int, default=8, help="the U-Net's first width (default 8)")
     parser.add_argument("--lr", type=float, default=1e-3)
+    parser.add_argument(
+        "--smoothness",
+        type=float,
+        default=TrainConfig.smoothness,
+        help=f"weight of the motion prior, the total variation of the predicted motion, in the loss (default {TrainConfig.smoothness:g}; 0: the blur's error alone)",
+    )
     parser.add_argument("--no-residual", action="store_true", help="the U-Net's output is the motion (default: a correction to block matching's)")
     parser.add_argument("--seed", type=int, default=0, help="the model's initialisation and batch order")
     parser.add_argument("--threads", type=int, default=None, help="CPU threads for each framework (default: theirs)")
@@ -133,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     limit_threads(args.threads)
     motion = args.motion or ("offsets" if args.method == "bezier" else "velocity")
     config = TrainConfig(
-        method=args.method, motion=motion, width=args.width, batch=args.batch, lr=args.lr, minutes=args.minutes, steps=args.steps, seed=args.seed, residual=not args.no_residual
+        method=args.method, motion=motion, width=args.width, batch=args.batch, lr=args.lr, smoothness=args.smoothness, minutes=args.minutes, steps=args.steps, seed=args.seed, residual=not args.no_residual
     )
     run(
         args.framework,

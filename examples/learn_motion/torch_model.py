@@ -26,10 +26,11 @@ from examples.learn_motion.common import (
     motion_paths,
     shutter_batches,
     training_loop,
+    training_loss,
 )
 from examples.learn_motion.data import SHUTTERS
 
-__all__ = ["MotionNet", "UNet", "block_matching", "make_model", "matching_costs", "predict", "train"]
+__all__ = ["MotionNet", "UNet", "block_matching", "loss_fn", "make_model", "matching_costs", "predict", "train"]
 
 
 class _Block(nn.Sequential):
@@ -137,9 +138,17 @@ def make_model(config: TrainConfig, device: str = "cpu") -> MotionNet:
     return MotionNet(config.method, config.motion, width=config.width, scale=config.scale, residual=config.residual).to(device)
 
 
+def loss_fn(model: MotionNet, frames, color, depth, target, shutter: int, config: TrainConfig) -> torch.Tensor:
+    """The training loss (`common.training_loss`): the mean squared error of the blurred middle frame
+    against the blurred target, plus config.smoothness x the total variation of the predicted motion."""
+    blurred, motion = model(frames, color, depth, shutter)
+    return training_loss(((blurred - target) ** 2).mean(), motion, color, config)
+
+
 def train(data: dict, config: TrainConfig, *, device: str = "cpu", log=print) -> tuple[MotionNet, dict]:
-    """Adam on the mean squared error against the blurred target, for config.minutes or config.steps,
-    whichever ends first (`common.training_loop`). Returns the model and the history."""
+    """Adam on `loss_fn` (the blur's error against the blurred target and the motion prior), for
+    config.minutes or config.steps, whichever ends first (`common.training_loop`). Returns the model
+    and the history."""
     model = make_model(config, device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
 
@@ -147,8 +156,7 @@ def train(data: dict, config: TrainConfig, *, device: str = "cpu", log=print) ->
         for group in optimizer.param_groups:
             group["lr"] = lr
         frames, color, depth, target = _tensors(arrays, device)
-        blurred, _ = model(frames, color, depth, shutter)
-        loss = ((blurred - target) ** 2).mean()
+        loss = loss_fn(model, frames, color, depth, target, shutter, config)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()

@@ -18,7 +18,8 @@ import torch
 import torch.distributed as dist
 import torch.multiprocessing as mp
 
-from examples.learn_motion.torch_model import MotionNet
+from examples.learn_motion.common import smoothness
+from examples.learn_motion.torch_model import MotionNet, loss_fn
 from tests.examples._learn_motion import CONFIG, different_motions, scenes
 
 
@@ -115,6 +116,49 @@ def test_torch_compile_of_the_whole_model_equals_eager():
         assert grads_e[name].abs().max() > 0, name
         torch.testing.assert_close(grads_c[name], grads_e[name], rtol=1e-5, atol=1e-7, msg=name)
         torch.testing.assert_close(after_c[name], after_e[name], rtol=1e-6, atol=1e-7, msg=name)
+
+
+def total_variation(motion: np.ndarray) -> float:
+    """The prior written out by loops: mean |horizontal neighbour difference| + mean |vertical one|."""
+    batch, channels, height, width = motion.shape
+    across = sum(abs(motion[b, c, y, x + 1] - motion[b, c, y, x]) for b in range(batch) for c in range(channels) for y in range(height) for x in range(width - 1))
+    down = sum(abs(motion[b, c, y + 1, x] - motion[b, c, y, x]) for b in range(batch) for c in range(channels) for y in range(height - 1) for x in range(width))
+    return across / (batch * channels * height * (width - 1)) + down / (batch * channels * (height - 1) * width)
+
+
+def test_the_training_loss_is_the_blur_error_plus_the_smoothness_prior_in_both_frameworks():
+    """torch_model.loss_fn = mean squared error of the blur + config.smoothness x the total variation of
+    the predicted motion (checked against loops, float64, 1e-12); with smoothness 0 the blur's error
+    alone; the prior's gradient reaches the U-Net; and jax_model.loss_fn on the same weights gives the
+    same loss (float64, 1e-6)."""
+    from dataclasses import replace
+
+    data = scenes(shutter=2)
+    net = model()
+    frames, color, depth, target = tensors(data)
+    assert CONFIG.smoothness > 0
+    loss = loss_fn(net, frames, color, depth, target, 2, CONFIG)
+    with torch.no_grad():
+        blurred, motion = net(frames, color, depth, 2)
+    mse = float(((blurred - target) ** 2).mean())
+    prior = total_variation(motion.numpy())
+    assert prior > 0.01 and abs(float(smoothness(motion)) - prior) <= 1e-12 * prior
+    # The edge-aware variant (tried on the validation split, not the default) counts colour edges less.
+    assert float(smoothness(motion, color, edge=10.0)) < prior and float(smoothness(motion, color, edge=0.0)) == float(smoothness(motion))
+    np.testing.assert_allclose(float(loss.detach()), mse + CONFIG.smoothness * prior, rtol=1e-12)
+    np.testing.assert_allclose(float(loss_fn(net, frames, color, depth, target, 2, replace(CONFIG, smoothness=0.0)).detach()), mse, rtol=1e-12)
+    net.zero_grad(set_to_none=True)
+    (loss - ((net(frames, color, depth, 2)[0] - target) ** 2).mean()).backward()  # the prior's gradient alone
+    assert net.unet.head.weight.grad.abs().max() > 0 and net.unet.down[0][0].weight.grad.abs().max() > 0
+
+    import jax.numpy as jnp  # float64: the root conftest enables x64
+
+    from examples.learn_motion import jax_model
+
+    jnet = jax_model.from_torch({name: value.detach().numpy() for name, value in net.state_dict().items()}, CONFIG, dtype=jnp.float64)
+    jloss = jax_model.loss_fn(jnet, *(jnp.asarray(data[name], dtype=jnp.float64) for name in ("frames", "color", "depth", "target")), 2, CONFIG)
+    # 1e-6: the two models' motions differ by about 1e-6 px here even in float64 (loss: 5e-8 relative).
+    np.testing.assert_allclose(float(jloss), float(loss.detach()), rtol=1e-6)
 
 
 # DDP: two gloo processes, each the half of a batch of 4, one Adam step; rank 0 writes its parameters.
