@@ -32,7 +32,7 @@ CASES = {
     "default": dict(max_radius=4.0, samples=7),
     "own directions": dict(max_radius=4.0, samples=7, directions="neighbor_and_own"),
     "early out": dict(max_radius=4.0, samples=7, early_out=True),
-    # Without jitter (or one constant per tile) the kernels read every tap as a shifted row.
+    # Without jitter (or with one constant per tile) the kernels read every tap as a shifted row.
     "no jitter": dict(max_radius=3.0, samples=5, jitter="none"),
     "no jitter, adaptive, early out": dict(max_radius=4.0, samples=15, adaptive=(3, 7), early_out=True, jitter="none"),
     "no jitter, min radius, soft z": dict(max_radius=5.0, samples=9, min_radius=1.5, soft_z_extent=0.02, jitter="none"),

@@ -6,7 +6,7 @@ dominated by the scatter-add that transposes the bilinear reads. These kernels d
 in one parallel loop over pixels, and its hand-written backward in a second one, each running a
 block of one row at a time as SIMD vectors (`diffblur.kernels.shared`: the pair layouts, the blocks,
 the scratch). They take and return NumPy arrays, so both backends share them: `torch_impl._fused`
-wraps them in an `autograd.Function`, `jax_impl._fused` in a `custom_vjp` over `pure_callback`.
+wraps them in custom operators, `jax_impl._fused` in a `custom_vjp` over `pure_callback`.
 
 The pure tensor ops stay the reference: tests compare outputs and gradients of both paths. The
 kernels repeat the pure ops' arithmetic (the same clamps, floors and `where` branches, so the same
@@ -16,9 +16,19 @@ Scope, checked by `reconstruct_unfused_reason`: bilinear sampling, the box shutt
 float64, no pyramid. The tap count is per tile (`counts`), which is how adaptive sampling and the
 early-out run here: a tile with count 0 returns the image and costs one copy.
 
-The backward scatters each tap's gradient to the 4 pixels it read, which may be anywhere in the
-image: each thread accumulates into its own full-size buffer, summed at the end, so the backward's
-memory is O(pixels x threads) (2 threads here), never O(pixels x taps).
+Two ways to read the taps, chosen per call by `shifted_rows`:
+
+- Shifted rows, when every tile's taps share their offsets (no jitter, or one constant per tile,
+  and every tap along NeighborMax, which is constant over a tile): tap k of a tile is the tile's
+  row read at one offset v_N t_k, so the reads are contiguous runs of the planar images with one
+  pair of bilinear fractions, and the backward's bilinear scatter is four vector adds along the
+  row that no two lanes share. Taps clamped at the image border are read one pixel at a time.
+- Per pixel, otherwise (the "noise" jitter, directions="neighbor_and_own"): each pixel's tap read
+  from a buffer of (left, right) pairs, and the backward scatters each tap's gradient to the 4
+  pixels it read, which lanes may share, one pixel at a time.
+
+Either way each thread accumulates the gradients into its own full-size buffer, summed at the end,
+so the backward's memory is O(pixels x threads) (2 threads here), never O(pixels x taps).
 """
 
 from __future__ import annotations
