@@ -1,5 +1,6 @@
 """The PyTorch model: a small U-Net predicts per-pixel motion from two sharp frames, and the library's
-`torch_impl.MotionBlur` layer blurs the middle frame with it. Trained only against the blurred target.
+`torch_impl.MotionBlur` layer blurs the middle frame with it. Trained against the blurred target
+(and a smoothness prior on the motion), never against the true motion.
 
 `jax_model.py` is the same architecture in Equinox; `copy_to_jax` there moves these weights across.
 """
