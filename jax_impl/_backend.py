@@ -262,6 +262,11 @@ class JaxBackend(Backend):
         return jnp.zeros((size, values.shape[1]), dtype=values.dtype).at[index].add(values)
 
     @staticmethod
+    def scatter_min(size: int, index: Array, values: Array) -> Array:
+        """(size,) of +inf holding the smallest of values (N,) at each row `index` (N,); no gradient."""
+        return jnp.full((size,), jnp.inf, dtype=values.dtype).at[index].min(jax.lax.stop_gradient(values))
+
+    @staticmethod
     def sum_chunks(splat: Callable, times: Array, masses: Array, chunk: int, fixed: tuple, start: Array) -> Array:
         """start + the sum of splat(times, masses, *fixed) over chunks of `chunk` points. One call
         when one chunk holds them all; else a `lax.scan` over the chunks, which XLA runs one after

@@ -10,6 +10,7 @@ where a failed device-side assert would leave the CUDA context unusable.
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -272,6 +273,12 @@ class TorchBackend(Backend):
     def scatter_add(size: int, index: Tensor, values: Tensor) -> Tensor:
         """(size, V) zeros with values (N, V) added at the rows `index` (N,)."""
         return torch.zeros(size, values.shape[1], dtype=values.dtype, device=values.device).index_add(0, index, values)
+
+    @staticmethod
+    def scatter_min(size: int, index: Tensor, values: Tensor) -> Tensor:
+        """(size,) of +inf holding the smallest of values (N,) at each row `index` (N,); no gradient."""
+        start = torch.full((size,), math.inf, dtype=values.dtype, device=values.device)
+        return start.scatter_reduce(0, index, values.detach(), "amin")
 
     @staticmethod
     def sum_chunks(splat: Callable, times: Tensor, masses: Tensor, chunk: int, fixed: tuple, start: Tensor) -> Tensor:

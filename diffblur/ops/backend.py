@@ -9,7 +9,7 @@ with the same meaning (where, floor, sqrt, stack, ...); the subclass's methods h
 - arrays: `astype`, `index`, `stop_gradient`, `arange`, `asarray`, `zeros`, `on_device`, `concat`,
   `permute`, `repeat`, `pad`, `argmax`, `take_along` (x's values at integer `index` along `axis`,
   the other axes broadcast, as NumPy's take_along_axis), `read_pixels`, `contiguous`, `row_indices`,
-  `write_rows`, `scatter_add`, `band`, `per_channel`, `widen_window`, `noise_jitter`;
+  `write_rows`, `scatter_add`, `scatter_min`, `band`, `per_channel`, `widen_window`, `noise_jitter`;
 - compilation and gradients: `constant`, `outside_compiler`, `compiled`, `needs_gradient`, and the
   loops whose memory matters, `sum_taps` (reconstruct's and the gather's taps) and `sum_chunks`
   (the scatter's chunks of points);
@@ -49,6 +49,8 @@ class Backend:
         if op == "gather_blur":
             return fused.gather_unfused_reason(color, o.sampling)
         if op == "bezier_scatter":
+            if o.composite == "instants" and o.normalization == "coverage":
+                return "composite='instants' runs on the tensor ops (composite='layers' or 'sum' has the kernel)"
             return fused_scatter.unfused_reason(color)
         return fused.unfused_reason(o, color, *arrays)
 

@@ -94,15 +94,30 @@ FILLS = ("still", "color")
 #: (128 x 128), SSIM higher on each; equal on pan, which has no still pixel. It removes 55 to 89 % of
 #: the squared error that the true background removes.
 DEFAULT_FILL = "still"
-#: How normalization="coverage" composites a moving pixel's splats. "layers": front to back, each
-#: layer over what is behind it by its coverage (A + (1 - alpha) behind where alpha <= 1, A / alpha
-#: where alpha > 1): the splats from sources nearer than the depth band in front, those level with
-#: the pixel (within the band), those from behind it (which the depth test of seed 003 drops: they
-#: are what the pixel shows once its own surface has moved off it), then the fill. "sum": seed 003's
-#: one sum of the splats the depth test passes (no depth write), over the fill. Still pixels are their
-#: own level layer, in front of what passes behind them, and keep the sum in both.
-COMPOSITES = ("layers", "sum")
-DEFAULT_COMPOSITE = "layers"
+#: How normalization="coverage" composites the splats. "instants": every point time on its own, as a
+#: camera sees it: at instant t_k each pixel shows the nearest of the points that land on it at t_k
+#: (every pixel splats, the still ones where they are; a splat counts where its source is within the
+#: depth band behind the nearest one there with bilinear weight above NEAREST_SPLAT_WEIGHT), over the
+#: fill for the part nothing covers; the instants summed by the shutter's masses. With fill="still"
+#: in an image without a still pixel (a moving camera), each instant's uncovered pixels take a
+#: push-pull of that instant's own picture, its pixels weighted by coverage x (depth / farthest
+#: depth)^UNCOVERED_DEPTH_POWER: what an instant uncovers lies behind what surrounds it.
+#: "layers": front to back, each layer over what is behind it by its coverage (A + (1 - alpha) behind
+#: where alpha <= 1, A / alpha where alpha > 1): the splats from sources nearer than the depth band in
+#: front, those level with the pixel (within the band), those from behind it (which the depth test
+#: of seed 003 drops: they are what the pixel shows once its own surface has moved off it), then the
+#: fill. "sum": seed 003's one sum of the splats the depth test passes (no depth write), over the
+#: fill. In "layers" and "sum" still pixels are their own level layer, in front of what passes behind
+#: them, and keep the sum.
+COMPOSITES = ("instants", "layers", "sum")
+DEFAULT_COMPOSITE = "instants"
+#: composite="instants": the bilinear weight above which a splat sets the nearest depth of the pixel
+#: it lands on (a corner's faint share of a point from a nearer surface does not hide the surface
+#: that covers the pixel).
+NEAREST_SPLAT_WEIGHT = 0.25
+#: composite="instants" with fill="still" and no still pixel: the power of depth / farthest depth
+#: that weighs an instant's pixels in the push-pull of what it uncovers.
+UNCOVERED_DEPTH_POWER = 3.0
 #: Bezier degrees: 1 (segment), 2 (seed 003's quadratic), 3 (seed 003 sec. 5.1's cubic).
 DEGREES = (1, 2, 3)
 #: The project's one default shutter (`diffblur.conventions.DEFAULT_SHUTTER`, the box), as the other
@@ -456,7 +471,7 @@ DOC = """Scatter every moving pixel's colour along its curved path over the expo
 CHUNK_PIXEL_POINTS = 1 << 18
 
 #: The static arguments of the scatter's core (`_scatter`), which JAX compiles whole.
-CORE_STATIC = ("be", "kind", "degree", "paper", "background_weight", "fill", "layers", "fused")
+CORE_STATIC = ("be", "kind", "degree", "paper", "background_weight", "fill", "composite", "log_depth", "fused")
 
 
 def bezier_scatter(
@@ -515,7 +530,8 @@ def bezier_scatter(
         paper=o.normalization == "paper",
         background_weight=o.background_weight,
         fill=o.fill if background is None else "array",
-        layers=o.composite == "layers",
+        composite=o.composite,
+        log_depth=relative,
         fused=fused,
     )
 
@@ -648,18 +664,23 @@ def _scatter(
     paper: bool,
     background_weight: float,
     fill: str,
-    layers: bool,
+    composite: str,
+    log_depth: bool,
     fused: bool,
 ) -> Any:
     """The scatter after the checks (compiled whole where the backend compiles, `CORE_STATIC`):
     `given` and `masses` in `position_dtype(color.dtype)`; the splats on the fused kernel if
-    `fused`; `layers`: composite="layers" (with "coverage"); fill "array": `background` given."""
+    `fused`; fill "array": `background` given; `log_depth`: `depth` holds log depths (the relative
+    band)."""
     xp = be.xp
     _, channels, height, width = color.shape
     wide = position_dtype(be, color.dtype)
     x, y = pixel_grid(be, height, width, color)
     terms = _terms(kind, degree, given)
     moving = moving_mask(kind, _moved_by(kind, degree, given), x, y)
+    if composite == "instants" and not paper:
+        return _instants(be, color, depth, terms, masses, extent, moving, x, y, background, kind=kind, fill=fill, log_depth=log_depth)
+    layers = composite == "layers"
 
     def sums(depth: Any) -> Any:
         if fused:
@@ -692,6 +713,92 @@ def _scatter(
         back = xp.where(xp.all(moving.reshape(moving.shape[0], -1), 1)[:, None, None, None], unknown, back)
     layered = _over(be, *split(near), _over(be, *split(level), back))
     return be.astype(xp.where(moving[:, None], layered, summed), color.dtype)
+
+
+def _instants(
+    be: Any, color: Any, depth: Any, terms: tuple, masses: Any, extent: Any, moving: Any, x: Any, y: Any, background: Any, *, kind: str, fill: str, log_depth: bool
+) -> Any:
+    """composite="instants" (`COMPOSITES`): each point time depth-tested on its own, in chunks of
+    instants (`Backend.sum_chunks`: O(pixels) memory with a gradient), the instants summed by their
+    masses."""
+    xp = be.xp
+    batch, channels, height, width = color.shape
+    wide = position_dtype(be, color.dtype)
+    log = depth if log_depth else xp.log(depth)
+    # Rows of [color, 1, log depth] per source pixel: one scatter-add sums colour, coverage and the
+    # depth that the uncovered fill weighs.
+    rows = be.astype(be.permute(be.concat([color, xp.ones_like(depth), log], 1), (0, 2, 3, 1)).reshape(-1, channels + 2), wide)
+    unknown = None
+    if background is None and fill == "color":
+        background = color
+    elif background is None:  # fill="still"; an image without a still pixel fills each instant from itself
+        background = _still_fill(be, color, be.astype(xp.logical_not(moving)[:, None], color.dtype))
+        unknown = xp.all(moving.reshape(batch, -1), 1)
+    # A still pixel shows itself behind what passes in front of it, as in the other composites.
+    background = be.astype(xp.where(moving[:, None], background, color), wide)
+    times = be.asarray(point_times(masses.shape[0]), wide, color)
+    # The picture of an instant and its push-pull weigh about twice the splats' rows.
+    chunk = max(1, CHUNK_PIXEL_POINTS // (2 * rows.shape[0]))
+
+    def instant(chunk_times: Any, chunk_masses: Any, *fixed: Any) -> Any:
+        return _instant_pictures(be, kind, chunk_times, chunk_masses, *fixed)
+
+    start = be.zeros((batch, channels, height, width), wide, color)
+    fixed = (terms, x[None], y[None], moving, rows, depth, extent, background, unknown)
+    return be.astype(be.sum_chunks(instant, times, masses, chunk, fixed, start), color.dtype)
+
+
+def _instant_pictures(
+    be: Any, kind: str, times: Any, masses: Any, terms: tuple, x: Any, y: Any, moving: Any, rows: Any, depth: Any, extent: Any, background: Any, unknown: Any
+) -> Any:
+    """The sum over `times` (K,) of masses x what the camera sees at each instant (B, C, H, W):
+    every pixel's point splatted bilinearly (the still ones where they are) onto the image padded
+    by a ring of one pixel; per destination the nearest depth among splats weighing more than
+    NEAREST_SPLAT_WEIGHT; the splats within the band behind it summed; over the fill."""
+    xp = be.xp
+    px, py = curve_position(kind, terms, x, y, times.reshape(-1, 1, 1, 1), xp)
+    px, py = xp.where(moving[None], px, x), xp.where(moving[None], py, y)
+    count, batch, height, width = px.shape
+    channels = rows.shape[1] - 2
+    x0, y0 = be.stop_gradient(xp.floor(px)), be.stop_gradient(xp.floor(py))
+    fx, fy = px - x0, py - y0
+    near = (x0 >= -1) & (x0 <= width - 1) & (y0 >= -1) & (y0 <= height - 1)
+    stride = width + 2
+    plane = (height + 2) * stride
+    first = (be.arange(count * batch, be.integer, rows) * plane).reshape(count, batch, 1, 1)
+    top_left = first + (be.index(xp.where(near, y0, -1.0)) + 1) * stride + be.index(xp.where(near, x0, -1.0)) + 1
+    index = xp.stack([top_left, top_left + 1, top_left + stride, top_left + stride + 1]).reshape(-1)
+    bilinear = xp.where(near[None], xp.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy]), 0.0)
+    source = xp.zeros_like(bilinear) + depth[None, None, :, 0]
+    size = count * batch * plane
+    nearest = be.scatter_min(size, index, xp.where(bilinear > NEAREST_SPLAT_WEIGHT, source, math.inf).reshape(-1))
+    omega = bilinear * be.astype(soft_depth_compare(be, nearest[index].reshape(bilinear.shape), source, extent), bilinear.dtype)
+    values = (omega.reshape(4 * count, -1, 1) * rows[None]).reshape(-1, rows.shape[1])
+    sums = be.scatter_add(size, index, values).reshape(count, batch, height + 2, width + 2, channels + 2)[:, :, 1:-1, 1:-1]
+    sums = be.permute(sums, (0, 1, 4, 2, 3))
+    splatted, alpha, log_sum = sums[:, :, :channels], sums[:, :, channels : channels + 1], sums[:, :, channels + 1 :]
+    behind = xp.zeros_like(splatted) + background[None]
+    if unknown is not None:
+        behind = xp.where(unknown[None, :, None, None, None], _uncovered(be, splatted, alpha, log_sum), behind)
+    pictures = _over(be, splatted, alpha, behind)
+    return (masses.reshape(-1, 1, 1, 1, 1) * pictures).sum(0)
+
+
+def _uncovered(be: Any, splatted: Any, alpha: Any, log_sum: Any) -> Any:
+    """What each instant (K, B, C, H, W) uncovers where nothing lands: a push-pull (`_still_fill`) of
+    the instant's picture, its pixels covered at least halfway weighted by coverage x (depth /
+    farthest such depth)^UNCOVERED_DEPTH_POWER."""
+    xp = be.xp
+    count, batch, channels, height, width = splatted.shape
+    covered = alpha >= 0.5
+    safe = xp.where(covered, alpha, 1.0)
+    mean_log = xp.where(covered, log_sum / safe, -math.inf)
+    farthest = be.stop_gradient(xp.amax(mean_log.reshape(count, batch, -1), 2)).reshape(count, batch, 1, 1, 1)
+    farthest = xp.where(farthest > -math.inf, farthest, 0.0)
+    weight = xp.where(covered, xp.where(alpha < 1, alpha, 1.0) * xp.exp(UNCOVERED_DEPTH_POWER * (xp.where(covered, mean_log, farthest) - farthest)), 0.0)
+    picture = xp.where(covered, splatted / safe, 0.0)
+    filled = _still_fill(be, picture.reshape(count * batch, channels, height, width), weight.reshape(count * batch, 1, height, width))
+    return filled.reshape(splatted.shape)
 
 
 def _over(be: Any, splatted: Any, alpha: Any, behind: Any) -> Any:

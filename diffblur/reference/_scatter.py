@@ -21,6 +21,8 @@ from diffblur.ops.scatter import (
     DEFAULT_SHUTTER,
     DEFAULT_RELATIVE_Z_EXTENT,
     MID_PREV_TIME,
+    NEAREST_SPLAT_WEIGHT,
+    UNCOVERED_DEPTH_POWER,
     ScatterOptions,
     length_times,
     point_count,
@@ -215,6 +217,7 @@ def bezier_scatter(
     checks.require_image("depth", depth.shape, channels=DEPTH_CHANNELS)
     relative, extent = checks.depth_band(soft_z_extent, relative_z_extent)
     extent = float(extent)
+    log_depths = np.log(depth)
     if relative:  # the band relative to depth: compare log depths (`diffblur.checks.depth_band`)
         depth, extent = np.log(depth), math.log1p(extent)
     window = o.window
@@ -250,6 +253,9 @@ def bezier_scatter(
         samples = point_count(longest, max_samples)
     times = point_times(samples)
     masses = point_masses(window, np.array(times), samples, np)
+
+    if normalization == "coverage" and composite == "instants":
+        return _instants(color, depth, log_depths, curve, times, masses, extent, fill, background)
 
     accumulated = np.zeros_like(color)
     alpha = np.zeros((batch, 1, height, width), dtype=color.dtype)
@@ -307,6 +313,58 @@ def bezier_scatter(
                 back[b] = (behind_accumulated[b] + mass * fill[b]) / (behind_alpha[b] + mass)
     layered = _over(near_accumulated, near_alpha, _over(level_accumulated, level_alpha, back))
     return np.where(moving_pixels, layered, summed)
+
+
+def _instants(color, depth, log_depths, curve, times, masses, extent, fill, background) -> np.ndarray:
+    """composite="instants": per instant t_k, every pixel's point (a still one where it is) splats
+    bilinearly; a destination's nearest depth is the least among splats of bilinear weight above
+    NEAREST_SPLAT_WEIGHT; the splats within the band behind it are summed (A, alpha, and the sum of
+    log depths) and laid over the fill; the instants summed by their masses. fill="still" in an
+    image without a still pixel: each instant's uncovered part is `still_fill` of its own picture
+    (A / alpha) weighted by min(alpha, 1) (depth / farthest depth)^UNCOVERED_DEPTH_POWER over the
+    pixels with alpha >= 1/2."""
+    batch, channels, height, width = color.shape
+    out = np.zeros_like(color)
+    curves = [[[curve(b, i, j) for j in range(width)] for i in range(height)] for b in range(batch)]
+    moving = np.array([[[curves[b][i][j][0] for j in range(width)] for i in range(height)] for b in range(batch)])
+    if background is None:
+        background = color if fill == "color" else still_fill(color, (~moving[:, None]).astype(color.dtype))
+    for b in range(batch):
+        unknown = fill == "still" and moving[b].all()
+        for t, mass in zip(times, masses):
+            splats = []
+            for i in range(height):
+                for j in range(width):
+                    is_moving, position, _ = curves[b][i][j]
+                    x, y = position(t) if is_moving else (float(j), float(i))
+                    splats.extend((row, column, weight, i, j) for row, column, weight in _bilinear_splat(x, y, height, width))
+            nearest = np.full((height, width), np.inf)
+            for row, column, weight, i, j in splats:
+                if weight > NEAREST_SPLAT_WEIGHT:
+                    nearest[row, column] = min(nearest[row, column], depth[b, 0, i, j])
+            accumulated = np.zeros((channels, height, width), dtype=color.dtype)
+            alpha = np.zeros((1, height, width), dtype=color.dtype)
+            log_sum = np.zeros((1, height, width), dtype=color.dtype)
+            for row, column, weight, i, j in splats:
+                omega = weight * (1.0 if nearest[row, column] == np.inf else _soft_in_front(nearest[row, column], depth[b, 0, i, j], extent))
+                accumulated[:, row, column] += omega * color[b, :, i, j]
+                alpha[0, row, column] += omega
+                log_sum[0, row, column] += omega * log_depths[b, 0, i, j]
+            behind = np.where(moving[b][None], background[b], color[b])
+            if unknown:
+                behind = _uncovered(accumulated, alpha, log_sum)
+            out[b] += mass * _over(accumulated, alpha, behind)
+    return out
+
+
+def _uncovered(accumulated: np.ndarray, alpha: np.ndarray, log_sum: np.ndarray) -> np.ndarray:
+    """An instant's picture (C, H, W) pushed-pulled into what nothing covers (see `_instants`)."""
+    covered = alpha >= 0.5
+    mean_log = np.divide(log_sum, alpha, out=np.full_like(log_sum, -np.inf), where=covered)
+    farthest = mean_log.max() if covered.any() else 0.0
+    weight = np.where(covered, np.minimum(alpha, 1.0) * np.exp(UNCOVERED_DEPTH_POWER * (np.where(covered, mean_log, farthest) - farthest)), 0.0)
+    picture = np.divide(accumulated, alpha, out=np.zeros_like(accumulated), where=covered)
+    return still_fill(picture[None], weight[None])[0]
 
 
 def _over(accumulated: np.ndarray, alpha: np.ndarray, behind: np.ndarray) -> np.ndarray:
