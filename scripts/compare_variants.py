@@ -3,7 +3,9 @@
 - tuned: the four Mitsuba scenes (`diffblur.scenes.mitsuba`) at --size;
 - presets: the 2.5D presets (`diffblur.scenes`, seed 0) at --size;
 - untuned: the Mitsuba variants of scripts/mitsuba_untuned.py (UNTUNED_SEED, 64x64) and the presets
-  drawn with seed UNTUNED_SEED, nothing tuned on them.
+  drawn with seed UNTUNED_SEED, nothing tuned on them;
+- heldout: the same drawn with HELDOUT_SEED (--variants 3 at 64x64), rendered after composite=
+  "instants" was chosen, for reporting only.
 
     PYTHONPATH=. python scripts/compare_variants.py --group scatter --sets tuned,presets,untuned
 """
@@ -39,6 +41,12 @@ def variants(group: str):
             "sum, background": lambda c, v, z, p, n, bg: None if bg is None else o.bezier_scatter(c, z, p, n, fill=bg, composite="sum"),
             "layers, background": lambda c, v, z, p, n, bg: None if bg is None else o.bezier_scatter(c, z, p, n, fill=bg),
         }
+    if group == "composite":  # bezier_scatter's composites, each with the fill="still" default and the scene's background
+        table = {}
+        for composite in ("instants", "layers", "sum"):
+            table[composite] = lambda c, v, z, p, n, bg, k=composite: o.bezier_scatter(c, z, p, n, composite=k)
+            table[f"{composite}, background"] = lambda c, v, z, p, n, bg, k=composite: None if bg is None else o.bezier_scatter(c, z, p, n, fill=bg, composite=k)
+        return table
     if group == "band":  # the scatter's relative depth band, with layers (the default composite)
         return {f"relative {r:g}": (lambda c, v, z, p, n, bg, r=r: o.bezier_scatter(c, z, p, n, relative_z_extent=r)) for r in (0.03, 0.1, 0.2, 0.3, 1.0)} | {
             f"relative {r:g}, background": (lambda c, v, z, p, n, bg, r=r: None if bg is None else o.bezier_scatter(c, z, p, n, relative_z_extent=r, fill=bg)) for r in (0.1, 0.3)}
@@ -76,6 +84,14 @@ def scene_sets(sets: list[str], size: int):
             yield "untuned", "mitsuba " + name, b
         for name in ("translate", "pan", "crossing", "propeller", "zoom", "gears"):
             yield "untuned", f"{name} s{UNTUNED_SEED}", make_scene(name, height=size, width=size, seed=UNTUNED_SEED)
+    if "heldout" in sets:
+        from diffblur.scenes import make_scene
+        from mitsuba_untuned import HELDOUT_SEED, untuned_scenes
+
+        for name, b in untuned_scenes(64, 3, HELDOUT_SEED).items():
+            yield "heldout", "mitsuba " + name, b
+        for name in ("translate", "pan", "crossing", "propeller", "zoom", "gears"):
+            yield "heldout", f"{name} s{HELDOUT_SEED}", make_scene(name, height=size, width=size, seed=HELDOUT_SEED)
 
 
 def main() -> None:

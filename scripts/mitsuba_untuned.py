@@ -2,7 +2,9 @@
 moving objects moved, their speeds and the camera's scaled, drawn from `UNTUNED_SEED` (used for
 nothing else), rendered at 64x64 and cached under .cache/diffblur/untuned.
 
-    PYTHONPATH=. python scripts/mitsuba_untuned.py [--size 64] [--variants 2]
+    PYTHONPATH=. python scripts/mitsuba_untuned.py [--size 64] [--variants 2] [--seed 20261202]
+
+`HELDOUT_SEED` draws a second such set (`--sets heldout` in scripts/compare_variants.py).
 
 `untuned_scenes(size, variants)` returns {name: SceneBuffers}; the command renders them (the cache
 makes a second call cheap) and prints each method's PSNR with defaults.
@@ -19,6 +21,9 @@ import numpy as np
 
 #: Draws the untuned variants; used for nothing else in the repository.
 UNTUNED_SEED = 20261202
+#: Draws a second untuned set, rendered only after composite="instants" was built and its constants
+#: chosen (on the tuned scenes), to report it; used for nothing else.
+HELDOUT_SEED = 20261203
 
 
 def _variant(scene, rng):
@@ -45,14 +50,14 @@ def _variant(scene, rng):
     return dataclasses.replace(scene, objects=tuple(objects), camera=camera)
 
 
-def untuned_scenes(size: int = 64, variants: int = 2) -> dict:
+def untuned_scenes(size: int = 64, variants: int = 2, seed: int = UNTUNED_SEED) -> dict:
     from diffblur.scenes.mitsuba import MITSUBA_SCENES, mitsuba_scene, render_mitsuba
     from diffblur.scenes import SceneBuffers
     from diffblur.shutters import get_shutter
 
-    cache = Path(os.environ.get("DIFFBLUR_CACHE", Path.cwd() / ".cache" / "diffblur")) / "untuned"
+    cache = Path(os.environ.get("DIFFBLUR_CACHE", Path.cwd() / ".cache" / "diffblur")) / ("untuned" if seed == UNTUNED_SEED else f"untuned_{seed}")
     cache.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(UNTUNED_SEED)
+    rng = np.random.default_rng(seed)
     out = {}
     fields = ("color", "depth", "velocity", "offset_prev", "offset_next", "target")
     for k in range(variants):
@@ -75,8 +80,9 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--size", type=int, default=64)
     parser.add_argument("--variants", type=int, default=2)
+    parser.add_argument("--seed", type=int, default=UNTUNED_SEED, help=f"{UNTUNED_SEED} (default) or {HELDOUT_SEED}")
     args = parser.parse_args()
-    scenes = untuned_scenes(args.size, args.variants)
+    scenes = untuned_scenes(args.size, args.variants, args.seed)
     for label, b in scenes.items():
         print(label, b.instants, float(np.abs(b.velocity).max()))
 

@@ -49,8 +49,6 @@ class Backend:
         if op == "gather_blur":
             return fused.gather_unfused_reason(color, o.sampling)
         if op == "bezier_scatter":
-            if o.composite == "instants" and o.normalization == "coverage":
-                return "composite='instants' runs on the tensor ops (composite='layers' or 'sum' has the kernel)"
             return fused_scatter.unfused_reason(color)
         return fused.unfused_reason(o, color, *arrays)
 

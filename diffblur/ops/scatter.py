@@ -678,14 +678,20 @@ def _scatter(
     x, y = pixel_grid(be, height, width, color)
     terms = _terms(kind, degree, given)
     moving = moving_mask(kind, _moved_by(kind, degree, given), x, y)
-    if composite == "instants" and not paper:
-        return _instants(be, color, depth, terms, masses, extent, moving, x, y, background, kind=kind, fill=fill, log_depth=log_depth)
     layers = composite == "layers"
 
     def sums(depth: Any) -> Any:
         if fused:
             return be.run_kernel("bezier_scatter", color, depth, kind, terms, masses, extent, moving, paper)
-        return _splat_sums(be, color, depth, terms, masses, extent, moving, x, y, kind=kind, paper=paper, passes=3 if layers and not paper else 1)
+        return _splat_sums(be, color, depth, terms, masses, extent, moving, x, y, kind=kind, paper=paper, passes=1 if paper or composite == "sum" else 3)
+
+    if composite == "instants" and not paper:
+        # A moving pixel's uncovered time: what passes behind it over the exposure, over the fill.
+        if background is None:
+            background = color if fill == "color" else _still_fill(be, color, be.astype(xp.logical_not(moving)[:, None], color.dtype))
+        passing = sums(xp.zeros_like(depth)) - sums(depth)
+        behind = _over(be, passing[:, :channels], be.per_channel(passing[:, channels:], channels), be.astype(background, wide))
+        return _instants(be, color, depth, terms, masses, extent, moving, x, y, behind, kind=kind, unknown=fill == "still", log_depth=log_depth)
 
     def split(accumulated: Any) -> tuple[Any, Any]:
         return accumulated[:, :channels], be.per_channel(accumulated[:, channels:], channels)
@@ -715,12 +721,11 @@ def _scatter(
     return be.astype(xp.where(moving[:, None], layered, summed), color.dtype)
 
 
-def _instants(
-    be: Any, color: Any, depth: Any, terms: tuple, masses: Any, extent: Any, moving: Any, x: Any, y: Any, background: Any, *, kind: str, fill: str, log_depth: bool
-) -> Any:
+def _instants(be: Any, color: Any, depth: Any, terms: tuple, masses: Any, extent: Any, moving: Any, x: Any, y: Any, behind: Any, *, kind: str, unknown: bool, log_depth: bool) -> Any:
     """composite="instants" (`COMPOSITES`): each point time depth-tested on its own, in chunks of
     instants (`Backend.sum_chunks`: O(pixels) memory with a gradient), the instants summed by their
-    masses."""
+    masses, over `behind` where nothing covers a pixel; `unknown` (fill="still"): an image without
+    a still pixel fills each instant from itself instead."""
     xp = be.xp
     batch, channels, height, width = color.shape
     wide = position_dtype(be, color.dtype)
@@ -728,14 +733,9 @@ def _instants(
     # Rows of [color, 1, log depth] per source pixel: one scatter-add sums colour, coverage and the
     # depth that the uncovered fill weighs.
     rows = be.astype(be.permute(be.concat([color, xp.ones_like(depth), log], 1), (0, 2, 3, 1)).reshape(-1, channels + 2), wide)
-    unknown = None
-    if background is None and fill == "color":
-        background = color
-    elif background is None:  # fill="still"; an image without a still pixel fills each instant from itself
-        background = _still_fill(be, color, be.astype(xp.logical_not(moving)[:, None], color.dtype))
-        unknown = xp.all(moving.reshape(batch, -1), 1)
     # A still pixel shows itself behind what passes in front of it, as in the other composites.
-    background = be.astype(xp.where(moving[:, None], background, color), wide)
+    behind = xp.where(moving[:, None], behind, be.astype(color, wide))
+    no_still = xp.all(moving.reshape(batch, -1), 1) if unknown else None
     times = be.asarray(point_times(masses.shape[0]), wide, color)
     # The picture of an instant and its push-pull weigh about twice the splats' rows.
     chunk = max(1, CHUNK_PIXEL_POINTS // (2 * rows.shape[0]))
@@ -744,12 +744,12 @@ def _instants(
         return _instant_pictures(be, kind, chunk_times, chunk_masses, *fixed)
 
     start = be.zeros((batch, channels, height, width), wide, color)
-    fixed = (terms, x[None], y[None], moving, rows, depth, extent, background, unknown)
+    fixed = (terms, x[None], y[None], moving, rows, depth, extent, behind, no_still)
     return be.astype(be.sum_chunks(instant, times, masses, chunk, fixed, start), color.dtype)
 
 
 def _instant_pictures(
-    be: Any, kind: str, times: Any, masses: Any, terms: tuple, x: Any, y: Any, moving: Any, rows: Any, depth: Any, extent: Any, background: Any, unknown: Any
+    be: Any, kind: str, times: Any, masses: Any, terms: tuple, x: Any, y: Any, moving: Any, rows: Any, depth: Any, extent: Any, behind: Any, no_still: Any
 ) -> Any:
     """The sum over `times` (K,) of masses x what the camera sees at each instant (B, C, H, W):
     every pixel's point splatted bilinearly (the still ones where they are) onto the image padded
@@ -777,9 +777,9 @@ def _instant_pictures(
     sums = be.scatter_add(size, index, values).reshape(count, batch, height + 2, width + 2, channels + 2)[:, :, 1:-1, 1:-1]
     sums = be.permute(sums, (0, 1, 4, 2, 3))
     splatted, alpha, log_sum = sums[:, :, :channels], sums[:, :, channels : channels + 1], sums[:, :, channels + 1 :]
-    behind = xp.zeros_like(splatted) + background[None]
-    if unknown is not None:
-        behind = xp.where(unknown[None, :, None, None, None], _uncovered(be, splatted, alpha, log_sum), behind)
+    behind = xp.zeros_like(splatted) + behind[None]
+    if no_still is not None:
+        behind = xp.where(no_still[None, :, None, None, None], _uncovered(be, splatted, alpha, log_sum), behind)
     pictures = _over(be, splatted, alpha, behind)
     return (masses.reshape(-1, 1, 1, 1, 1) * pictures).sum(0)
 

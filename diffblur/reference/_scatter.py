@@ -254,9 +254,6 @@ def bezier_scatter(
     times = point_times(samples)
     masses = point_masses(window, np.array(times), samples, np)
 
-    if normalization == "coverage" and composite == "instants":
-        return _instants(color, depth, log_depths, curve, times, masses, extent, fill, background)
-
     accumulated = np.zeros_like(color)
     alpha = np.zeros((batch, 1, height, width), dtype=color.dtype)
     # composite="layers": the splats from sources nearer than the band in front (near) and every
@@ -294,6 +291,10 @@ def bezier_scatter(
     fill = np.where(moving_pixels, background, color)
     if normalization == "paper":
         return (accumulated + background_weight * fill) / (alpha + background_weight)
+    if composite == "instants":
+        # a moving pixel's uncovered time: what passes behind it over the exposure, over the fill
+        behind = _over(every_accumulated - accumulated, every_alpha - alpha, fill)
+        return _instants(color, depth, log_depths, curve, times, masses, extent, np.where(moving_pixels, behind, color), unknown_behind)
     summed = _over(accumulated, alpha, fill)
     if composite == "sum":
         return summed
@@ -315,22 +316,19 @@ def bezier_scatter(
     return np.where(moving_pixels, layered, summed)
 
 
-def _instants(color, depth, log_depths, curve, times, masses, extent, fill, background) -> np.ndarray:
+def _instants(color, depth, log_depths, curve, times, masses, extent, behind, unknown) -> np.ndarray:
     """composite="instants": per instant t_k, every pixel's point (a still one where it is) splats
     bilinearly; a destination's nearest depth is the least among splats of bilinear weight above
     NEAREST_SPLAT_WEIGHT; the splats within the band behind it are summed (A, alpha, and the sum of
-    log depths) and laid over the fill; the instants summed by their masses. fill="still" in an
-    image without a still pixel: each instant's uncovered part is `still_fill` of its own picture
-    (A / alpha) weighted by min(alpha, 1) (depth / farthest depth)^UNCOVERED_DEPTH_POWER over the
-    pixels with alpha >= 1/2."""
+    log depths) and laid over `behind`; the instants summed by their masses. `unknown` (fill="still"):
+    in an image without a still pixel each instant's uncovered part is `still_fill` of its own
+    picture (A / alpha) weighted by min(alpha, 1) (depth / farthest depth)^UNCOVERED_DEPTH_POWER
+    over the pixels with alpha >= 1/2, instead of `behind`."""
     batch, channels, height, width = color.shape
     out = np.zeros_like(color)
     curves = [[[curve(b, i, j) for j in range(width)] for i in range(height)] for b in range(batch)]
-    moving = np.array([[[curves[b][i][j][0] for j in range(width)] for i in range(height)] for b in range(batch)])
-    if background is None:
-        background = color if fill == "color" else still_fill(color, (~moving[:, None]).astype(color.dtype))
     for b in range(batch):
-        unknown = fill == "still" and moving[b].all()
+        no_still = unknown and all(curves[b][i][j][0] for i in range(height) for j in range(width))
         for t, mass in zip(times, masses):
             splats = []
             for i in range(height):
@@ -350,10 +348,8 @@ def _instants(color, depth, log_depths, curve, times, masses, extent, fill, back
                 accumulated[:, row, column] += omega * color[b, :, i, j]
                 alpha[0, row, column] += omega
                 log_sum[0, row, column] += omega * log_depths[b, 0, i, j]
-            behind = np.where(moving[b][None], background[b], color[b])
-            if unknown:
-                behind = _uncovered(accumulated, alpha, log_sum)
-            out[b] += mass * _over(accumulated, alpha, behind)
+            uncovered = _uncovered(accumulated, alpha, log_sum) if no_still else behind[b]
+            out[b] += mass * _over(accumulated, alpha, uncovered)
     return out
 
 
