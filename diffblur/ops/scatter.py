@@ -355,8 +355,9 @@ def no_still_message(moving: np.ndarray) -> str | None:
     return (
         f"bezier_scatter(fill='still') found no still pixel (one that moves at most "
         f"STILL_SPEED={conventions.STILL_SPEED} px) in image(s) {images} of the batch: every moving pixel "
-        f"there fills its uncovered time with what passes behind it (composite='layers'), else with its "
-        f"own colour, as fill='color'. Pass fill='color' to say so, or the scene behind as fill=<array> (warned once per process)"
+        f"there fills its uncovered time from the rest of the picture (composite='instants': each instant's "
+        f"own splats, the farther first; 'layers': what passes behind it), else with its own colour, as "
+        f"fill='color'. Pass fill='color' to say so, or the scene behind as fill=<array> (warned once per process)"
     )
 
 
@@ -773,21 +774,35 @@ def _instant_pictures(
     size = count * batch * plane
     nearest = be.scatter_min(size, index, xp.where(bilinear > NEAREST_SPLAT_WEIGHT, source, math.inf).reshape(-1))
     omega = bilinear * be.astype(soft_depth_compare(be, nearest[index].reshape(bilinear.shape), source, extent), bilinear.dtype)
-    values = (omega.reshape(4 * count, -1, 1) * rows[None]).reshape(-1, rows.shape[1])
-    sums = be.scatter_add(size, index, values).reshape(count, batch, height + 2, width + 2, channels + 2)[:, :, 1:-1, 1:-1]
+    # Per splat omega x [color, 1, log depth] (the nearest layer) and bilinear x [color, 1] (every
+    # splat): where the nearest layer covers a pixel in part, the others show in the rest of it.
+    values = be.concat([omega.reshape(4 * count, -1, 1) * rows[None], bilinear.reshape(4 * count, -1, 1) * rows[None, :, : channels + 1]], 2)
+    sums = be.scatter_add(size, index, values.reshape(-1, 2 * channels + 3)).reshape(count, batch, height + 2, width + 2, 2 * channels + 3)[:, :, 1:-1, 1:-1]
     sums = be.permute(sums, (0, 1, 4, 2, 3))
-    splatted, alpha, log_sum = sums[:, :, :channels], sums[:, :, channels : channels + 1], sums[:, :, channels + 1 :]
+    splatted, alpha, log_sum = sums[:, :, :channels], sums[:, :, channels : channels + 1], sums[:, :, channels + 1 : channels + 2]
+    hidden, hidden_alpha = sums[:, :, channels + 2 : 2 * channels + 2] - splatted, sums[:, :, 2 * channels + 2 :] - alpha
     behind = xp.zeros_like(splatted) + behind[None]
     if no_still is not None:
-        behind = xp.where(no_still[None, :, None, None, None], _uncovered(be, splatted, alpha, log_sum), behind)
-    pictures = _over(be, splatted, alpha, behind)
+        behind = xp.where(no_still[None, :, None, None, None], _uncovered(be, splatted, alpha, log_sum, behind), behind)
+    pictures = _beside(be, splatted, alpha, hidden, hidden_alpha, behind)
     return (masses.reshape(-1, 1, 1, 1, 1) * pictures).sum(0)
 
 
-def _uncovered(be: Any, splatted: Any, alpha: Any, log_sum: Any) -> Any:
+def _beside(be: Any, splatted: Any, alpha: Any, hidden: Any, hidden_alpha: Any, behind: Any) -> Any:
+    """An instant's picture: the nearest layer's splats (A, alpha); the part of the pixel they leave,
+    1 - alpha, shows the other splats up to their coverage (they lie beside the nearest layer, as at
+    an edge, as far as they can), then `behind`. Over 1, A / alpha."""
+    xp = be.xp
+    gap = xp.where(alpha < 1, 1.0 - alpha, 0.0)
+    fits = hidden_alpha <= gap
+    shown = xp.where(fits, hidden, hidden * gap / xp.where(fits, 1.0, hidden_alpha))
+    return (splatted + shown + xp.where(fits, gap - hidden_alpha, 0.0) * behind) / xp.where(alpha > 1, alpha, 1.0)
+
+
+def _uncovered(be: Any, splatted: Any, alpha: Any, log_sum: Any, behind: Any) -> Any:
     """What each instant (K, B, C, H, W) uncovers where nothing lands: a push-pull (`_still_fill`) of
     the instant's picture, its pixels covered at least halfway weighted by coverage x (depth /
-    farthest such depth)^UNCOVERED_DEPTH_POWER."""
+    farthest such depth)^UNCOVERED_DEPTH_POWER; `behind` at an instant that covers no pixel so."""
     xp = be.xp
     count, batch, channels, height, width = splatted.shape
     covered = alpha >= 0.5
@@ -796,7 +811,7 @@ def _uncovered(be: Any, splatted: Any, alpha: Any, log_sum: Any) -> Any:
     farthest = be.stop_gradient(xp.amax(mean_log.reshape(count, batch, -1), 2)).reshape(count, batch, 1, 1, 1)
     farthest = xp.where(farthest > -math.inf, farthest, 0.0)
     weight = xp.where(covered, xp.where(alpha < 1, alpha, 1.0) * xp.exp(UNCOVERED_DEPTH_POWER * (xp.where(covered, mean_log, farthest) - farthest)), 0.0)
-    picture = xp.where(covered, splatted / safe, 0.0)
+    picture = xp.where(covered, splatted / safe, behind)
     filled = _still_fill(be, picture.reshape(count * batch, channels, height, width), weight.reshape(count * batch, 1, height, width))
     return filled.reshape(splatted.shape)
 

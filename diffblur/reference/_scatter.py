@@ -320,7 +320,8 @@ def _instants(color, depth, log_depths, curve, times, masses, extent, behind, un
     """composite="instants": per instant t_k, every pixel's point (a still one where it is) splats
     bilinearly; a destination's nearest depth is the least among splats of bilinear weight above
     NEAREST_SPLAT_WEIGHT; the splats within the band behind it are summed (A, alpha, and the sum of
-    log depths) and laid over `behind`; the instants summed by their masses. `unknown` (fill="still"):
+    log depths); the part of the pixel they leave (1 - alpha) shows the other splats up to their
+    coverage, then `behind`; over 1, A / alpha; the instants summed by their masses. `unknown` (fill="still"):
     in an image without a still pixel each instant's uncovered part is `still_fill` of its own
     picture (A / alpha) weighted by min(alpha, 1) (depth / farthest depth)^UNCOVERED_DEPTH_POWER
     over the pixels with alpha >= 1/2, instead of `behind`."""
@@ -343,23 +344,32 @@ def _instants(color, depth, log_depths, curve, times, masses, extent, behind, un
             accumulated = np.zeros((channels, height, width), dtype=color.dtype)
             alpha = np.zeros((1, height, width), dtype=color.dtype)
             log_sum = np.zeros((1, height, width), dtype=color.dtype)
+            hidden, hidden_alpha = np.zeros_like(accumulated), np.zeros_like(alpha)
             for row, column, weight, i, j in splats:
                 omega = weight * (1.0 if nearest[row, column] == np.inf else _soft_in_front(nearest[row, column], depth[b, 0, i, j], extent))
                 accumulated[:, row, column] += omega * color[b, :, i, j]
                 alpha[0, row, column] += omega
                 log_sum[0, row, column] += omega * log_depths[b, 0, i, j]
-            uncovered = _uncovered(accumulated, alpha, log_sum) if no_still else behind[b]
-            out[b] += mass * _over(accumulated, alpha, uncovered)
+                hidden[:, row, column] += (weight - omega) * color[b, :, i, j]
+                hidden_alpha[0, row, column] += weight - omega
+            uncovered = _uncovered(accumulated, alpha, log_sum, behind[b]) if no_still else behind[b]
+            # the part of a pixel the nearest layer leaves shows the other splats up to their
+            # coverage, then what is uncovered
+            gap = np.maximum(1.0 - alpha, 0.0)
+            shown = np.minimum(hidden_alpha, gap)
+            beside = np.divide(hidden * shown, hidden_alpha, out=np.zeros_like(hidden), where=hidden_alpha > 0)
+            out[b] += mass * (accumulated + beside + (gap - shown) * uncovered) / np.maximum(alpha, 1.0)
     return out
 
 
-def _uncovered(accumulated: np.ndarray, alpha: np.ndarray, log_sum: np.ndarray) -> np.ndarray:
-    """An instant's picture (C, H, W) pushed-pulled into what nothing covers (see `_instants`)."""
+def _uncovered(accumulated: np.ndarray, alpha: np.ndarray, log_sum: np.ndarray, behind: np.ndarray) -> np.ndarray:
+    """An instant's picture (C, H, W) pushed-pulled into what nothing covers (see `_instants`);
+    `behind` where the instant covers no pixel at least halfway."""
     covered = alpha >= 0.5
     mean_log = np.divide(log_sum, alpha, out=np.full_like(log_sum, -np.inf), where=covered)
     farthest = mean_log.max() if covered.any() else 0.0
     weight = np.where(covered, np.minimum(alpha, 1.0) * np.exp(UNCOVERED_DEPTH_POWER * (np.where(covered, mean_log, farthest) - farthest)), 0.0)
-    picture = np.divide(accumulated, alpha, out=np.zeros_like(accumulated), where=covered)
+    picture = np.where(covered, np.divide(accumulated, alpha, out=np.zeros_like(accumulated), where=covered), behind)
     return still_fill(picture[None], weight[None])[0]
 
 
