@@ -263,8 +263,8 @@ class JaxBackend(Backend):
 
     @staticmethod
     def scatter_min(size: int, index: Array, values: Array) -> Array:
-        """(size,) of +inf holding the smallest of values (N,) at each row `index` (N,); no gradient."""
-        return jnp.full((size,), jnp.inf, dtype=values.dtype).at[index].min(jax.lax.stop_gradient(values))
+        """(size,) of +inf holding the smallest of values (N,) at each row `index` (N,)."""
+        return jnp.full((size,), jnp.inf, dtype=values.dtype).at[index].min(values)
 
     @staticmethod
     def sum_chunks(splat: Callable, times: Array, masses: Array, chunk: int, fixed: tuple, start: Array) -> Array:

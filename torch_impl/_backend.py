@@ -276,9 +276,9 @@ class TorchBackend(Backend):
 
     @staticmethod
     def scatter_min(size: int, index: Tensor, values: Tensor) -> Tensor:
-        """(size,) of +inf holding the smallest of values (N,) at each row `index` (N,); no gradient."""
+        """(size,) of +inf holding the smallest of values (N,) at each row `index` (N,)."""
         start = torch.full((size,), math.inf, dtype=values.dtype, device=values.device)
-        return start.scatter_reduce(0, index, values.detach(), "amin")
+        return start.scatter_reduce(0, index, values, "amin")
 
     @staticmethod
     def sum_chunks(splat: Callable, times: Tensor, masses: Tensor, chunk: int, fixed: tuple, start: Tensor) -> Tensor:

@@ -738,8 +738,9 @@ def _instants(be: Any, color: Any, depth: Any, terms: tuple, masses: Any, extent
     behind = xp.where(moving[:, None], behind, be.astype(color, wide))
     no_still = xp.all(moving.reshape(batch, -1), 1) if unknown else None
     times = be.asarray(point_times(masses.shape[0]), wide, color)
-    # The picture of an instant and its push-pull weigh about twice the splats' rows.
-    chunk = max(1, CHUNK_PIXEL_POINTS // (2 * rows.shape[0]))
+    # An instant's sums fill the image padded by a ring (three times a line image's pixels) with
+    # 2 C + 3 values, its splats four corners each: budgeted as twice the padded pixels.
+    chunk = max(1, CHUNK_PIXEL_POINTS // (2 * batch * (height + 2) * (width + 2)))
 
     def instant(chunk_times: Any, chunk_masses: Any, *fixed: Any) -> Any:
         return _instant_pictures(be, kind, chunk_times, chunk_masses, *fixed)
@@ -770,7 +771,8 @@ def _instant_pictures(
     top_left = first + (be.index(xp.where(near, y0, -1.0)) + 1) * stride + be.index(xp.where(near, x0, -1.0)) + 1
     index = xp.stack([top_left, top_left + 1, top_left + stride, top_left + stride + 1]).reshape(-1)
     bilinear = xp.where(near[None], xp.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy]), 0.0)
-    source = xp.zeros_like(bilinear) + depth[None, None, :, 0]
+    source = xp.zeros_like(bilinear) + be.astype(depth, bilinear.dtype)[None, None, :, 0]
+    extent = be.astype(extent, bilinear.dtype) if be.is_array(extent) else extent
     size = count * batch * plane
     nearest = be.scatter_min(size, index, xp.where(bilinear > NEAREST_SPLAT_WEIGHT, source, math.inf).reshape(-1))
     omega = bilinear * be.astype(soft_depth_compare(be, nearest[index].reshape(bilinear.shape), source, extent), bilinear.dtype)
@@ -808,7 +810,7 @@ def _uncovered(be: Any, splatted: Any, alpha: Any, log_sum: Any, behind: Any) ->
     covered = alpha >= 0.5
     safe = xp.where(covered, alpha, 1.0)
     mean_log = xp.where(covered, log_sum / safe, -math.inf)
-    farthest = be.stop_gradient(xp.amax(mean_log.reshape(count, batch, -1), 2)).reshape(count, batch, 1, 1, 1)
+    farthest = xp.amax(mean_log.reshape(count, batch, -1), 2).reshape(count, batch, 1, 1, 1)
     farthest = xp.where(farthest > -math.inf, farthest, 0.0)
     weight = xp.where(covered, xp.where(alpha < 1, alpha, 1.0) * xp.exp(UNCOVERED_DEPTH_POWER * (xp.where(covered, mean_log, farthest) - farthest)), 0.0)
     picture = xp.where(covered, splatted / safe, behind)

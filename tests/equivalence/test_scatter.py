@@ -151,8 +151,8 @@ def test_one_moving_pixel_by_hand(implementation):
     color = np.array([0.0, 0.0, 1.0, 0.0, 0.0]).reshape(1, 1, 1, 5)
     depth = np.ones((1, 1, 1, 5))
     prev, nxt = vectors(1, 5, **{"0,2": (-1.0, 0.0)}), vectors(1, 5, **{"0,2": (1.0, 0.0)})
-    run = lambda **o: scatter(implementation, color, depth, prev, nxt, samples=2, shutter="box", **o)[0, 0, 0]  # noqa: E731
-    # coverage: A = alpha = [0, 1/4, 1/2, 1/4, 0]; fill="color": each pixel keeps its own colour for 1 - alpha.
+    run = lambda **o: scatter(implementation, color, depth, prev, nxt, samples=2, shutter="box", composite="layers", **o)[0, 0, 0]  # noqa: E731
+    # composite="layers" (the still pixels keep the sum), coverage: A = alpha = [0, 1/4, 1/2, 1/4, 0]; fill="color": each pixel keeps its own colour for 1 - alpha.
     np.testing.assert_allclose(run(fill="color"), [0.0, 0.25, 0.5 + 0.5 * 1.0, 0.25, 0.0], atol=1e-15)
     # fill="still" (the default): the moving pixel shows the still pixels' estimate, 0 here, for its
     # uncovered half, as with a (black) background
@@ -166,14 +166,15 @@ def test_one_moving_pixel_by_hand(implementation):
 
 @pytest.mark.parametrize("implementation", IMPLEMENTATIONS)
 def test_depth_test_by_hand(implementation):
-    """Pixel 1 (depth 2) moves along x = 2 .. 4 (points at 2.5 and 3.5). Pixel 2 is a still occluder
-    (depth 1, in front): it rejects the splat; pixel 3 is level (passes), pixel 4 behind (passes).
+    """composite="layers": pixel 1 (depth 2) moves along x = 2 .. 4 (points at 2.5 and 3.5). Pixel 2 is
+    a still occluder (depth 1, in front): it rejects the splat; pixel 3 is level (passes), pixel 4
+    behind (passes).
     With pixel 2 at depth 1.95 and extent 0.1 the source is half the band behind: half counts."""
     color = np.array([0.0, 1.0, 0.2, 0.3, 0.4]).reshape(1, 1, 1, 5)
     prev, nxt = vectors(1, 5, **{"0,1": (1.0, 0.0)}), vectors(1, 5, **{"0,1": (3.0, 0.0)})
     for occluder, expected_2 in ((1.0, 0.2), (1.95, 0.125 + 0.875 * 0.2)):
         depth = np.array([1.0, 2.0, occluder, 2.0, 10.0]).reshape(1, 1, 1, 5)
-        out = scatter(implementation, color, depth, prev, nxt, degree=1, samples=2, shutter="box", soft_z_extent=0.1, fill="color")
+        out = scatter(implementation, color, depth, prev, nxt, degree=1, samples=2, shutter="box", soft_z_extent=0.1, fill="color", composite="layers")
         # pixel 1 is left uncovered and keeps its colour; 3 gets 1/4 + 1/4 of it; 4 gets 1/4
         np.testing.assert_allclose(out[0, 0, 0], [0.0, 1.0, expected_2, 0.5 + 0.5 * 0.3, 0.25 + 0.75 * 0.4], atol=1e-12)
     # fill="still": pixel 1 shows the push-pull estimate of the still pixels [0, -, 0.2, 0.3, 0.4].
@@ -181,7 +182,7 @@ def test_depth_test_by_hand(implementation):
     # 0.4 / 1], then [0.5 / 3, 0.4 / 1], then [0.9 / 4]. Push: every coarser pixel has weight >= 1 and
     # keeps its mean: [0, 0.25, 0.4]; pixel 1 (weight 0) takes 3/4 of its parent (0) + 1/4 of the
     # parent's right neighbour (0.25) = 0.0625.
-    out = scatter(implementation, color, depth, prev, nxt, degree=1, samples=2, shutter="box", soft_z_extent=0.1)
+    out = scatter(implementation, color, depth, prev, nxt, degree=1, samples=2, shutter="box", soft_z_extent=0.1, composite="layers")
     np.testing.assert_allclose(out[0, 0, 0], [0.0, 0.0625, 0.125 + 0.875 * 0.2, 0.5 + 0.5 * 0.3, 0.25 + 0.75 * 0.4], atol=1e-12)
 
 
@@ -191,7 +192,9 @@ def test_a_nearer_splat_covers_a_moving_pixel_instead_of_being_averaged_with_it(
     half the exposure (points at 1.5 and 2.5, mass 1/2 each). Pixels 1-4 are a far surface (depth 4,
     colour 0) sliding 0.5 px each way, which covers pixel 2 for the whole exposure (its own point 3/4,
     its neighbours' 1/8 each). The nearer splat goes over the far ones: 0.5, what the camera sees.
-    "sum" (seed 003, no depth write) averages the 1.5 exposures of coverage: 1/3."""
+    "sum" (seed 003, no depth write) averages the 1.5 exposures of coverage: 1/3. "instants" (the
+    default): at t = -1/2 and +1/2 the near point covers half of pixel 2 and the far surface the rest,
+    so 0.5 too."""
     color = np.array([1.0, 0.0, 0.0, 0.0, 0.0]).reshape(1, 1, 1, 5)
     depth = np.array([1.0, 4.0, 4.0, 4.0, 4.0]).reshape(1, 1, 1, 5)
     prev = vectors(1, 5, **{"0,0": (1.0, 0.0)}, **{f"0,{j}": (-0.5, 0.0) for j in range(1, 5)})
@@ -199,6 +202,7 @@ def test_a_nearer_splat_covers_a_moving_pixel_instead_of_being_averaged_with_it(
     run = lambda **o: scatter(implementation, color, depth, prev, nxt, degree=1, samples=2, shutter="box", **o)[0, 0, 0, 2]  # noqa: E731
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # no still pixel
+        np.testing.assert_allclose(run(composite="layers"), 0.5, atol=1e-12)
         np.testing.assert_allclose(run(), 0.5, atol=1e-12)
         np.testing.assert_allclose(run(composite="sum"), 1.0 / 3.0, atol=1e-12)
 
@@ -221,10 +225,53 @@ def test_what_passes_behind_a_moving_pixel_is_what_it_uncovers(implementation):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # no still pixel
         np.testing.assert_allclose(run(composite="sum"), 1.0, atol=1e-12)
-        np.testing.assert_allclose(run(fill="color"), 0.9, atol=1e-12)
-        np.testing.assert_allclose(run(), (0.25 * 0.6 + 0.5) / 0.75, atol=1e-12)
+        np.testing.assert_allclose(run(fill="color", composite="layers"), 0.9, atol=1e-12)
+        np.testing.assert_allclose(run(composite="layers"), (0.25 * 0.6 + 0.5) / 0.75, atol=1e-12)
         # seed 003's own normalisation has no layers
         np.testing.assert_allclose(run(normalization="paper"), run(normalization="paper", composite="sum"), atol=1e-15)
+
+
+@pytest.mark.parametrize("implementation", IMPLEMENTATIONS)
+def test_each_instant_shows_the_nearest_point_on_a_pixel(implementation):
+    """composite="instants" (the default), degree 1, points at t = -1/2 and +1/2 (mass 1/2 each).
+    Pixel 1 (depth 1, colour 1) moves +2 px per unit t, pixel 3 (depth 4, colour 0.5) -2 px: at
+    t = +1/2 both land on pixel 2 (a still pixel, depth 10, colour 0.2), at t = -1/2 neither does. So
+    pixel 2 shows the near point for half the exposure and itself for the other half: 0.6. "sum" and
+    "layers" (a still pixel keeps the sum) weigh the two points by coverage whatever their order:
+    0.5 x 1 + 0.5 x 0.5 = 0.75. Pixel 1 is uncovered at both instants and nothing passes behind it:
+    the fill, here an array."""
+    color = np.array([0.1, 1.0, 0.2, 0.5, 0.3]).reshape(1, 1, 1, 5)
+    depth = np.array([10.0, 1.0, 10.0, 4.0, 10.0]).reshape(1, 1, 1, 5)
+    prev, nxt = vectors(1, 5, **{"0,1": (-2.0, 0.0), "0,3": (2.0, 0.0)}), vectors(1, 5, **{"0,1": (2.0, 0.0), "0,3": (-2.0, 0.0)})
+    behind = np.array([0.1, 0.7, 0.2, 0.8, 0.3]).reshape(1, 1, 1, 5)
+    run = lambda **o: scatter(implementation, color, depth, prev, nxt, degree=1, samples=2, shutter="box", fill=behind, **o)[0, 0, 0]  # noqa: E731
+    out = run()
+    np.testing.assert_allclose(out[2], 0.5 * 1.0 + 0.5 * 0.2, atol=1e-12)
+    np.testing.assert_allclose(out[1], 0.7, atol=1e-12)
+    for composite in ("sum", "layers"):
+        np.testing.assert_allclose(run(composite=composite)[2], 0.75, atol=1e-12)
+
+
+@pytest.mark.parametrize("implementation", IMPLEMENTATIONS)
+def test_a_moving_camera_uncovers_the_farther_surface(implementation):
+    """No still pixel: a far surface (depth 10, colour 0.3) creeps 0.01 px while a near object (depth 1,
+    colour 1, pixels 6-7 of 16) moves 2 px each way (points at t = -1/2 and +1/2). Pixels 6-7 are
+    uncovered at both instants, and nothing in the frame shows what is behind them: the scene behind
+    is the far surface (0.3). "instants" fills each instant from its own picture, the farther points
+    weighing (depth / farthest)^3 = 1000 times the near ones: within 0.02 of 0.3; "layers" fills
+    them with the object's own colour but for the far points' 0.005 px creep onto them: above 0.99."""
+    width = 16
+    color = np.full((1, 1, 1, width), 0.3)
+    depth = np.full((1, 1, 1, width), 10.0)
+    color[..., 6:8], depth[..., 6:8] = 1.0, 1.0
+    creep = {f"0,{j}": (0.01, 0.0) for j in range(width) if j not in (6, 7)}
+    prev = vectors(1, width, **{k: (-v[0], 0.0) for k, v in creep.items()}, **{"0,6": (-4.0, 0.0), "0,7": (-4.0, 0.0)})
+    nxt = vectors(1, width, **creep, **{"0,6": (4.0, 0.0), "0,7": (4.0, 0.0)})
+    run = lambda **o: scatter(implementation, color, depth, prev, nxt, degree=1, samples=2, shutter="box", **o)[0, 0, 0]  # noqa: E731
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # no still pixel
+        np.testing.assert_allclose(run()[6:8], 0.3, atol=0.02)
+        assert np.all(run(composite="layers")[6:8] > 0.99)
 
 
 # ----- the curve ----------------------------------------------------------------------------------
@@ -249,7 +296,7 @@ def test_reference_control_points_put_p0_at_the_middle():
 def test_the_middle_point_sits_at_p0(implementation):
     """With one point per curve (t = 0), every source lands exactly on itself for degrees 2 and 3
     whatever its random offsets (B(1/2) = p(0)), so the image comes back unchanged; degree 1 lands
-    halfway between p(-1) and p(1) instead."""
+    halfway between p(-1) and p(1) instead (composite="sum": its splat adds to the still pixels)."""
     rng = np.random.default_rng(17)
     color = rng.random((2, 2, 5, 6))
     depth = rng.uniform(1.0, 2.0, size=(2, 1, 5, 6))
@@ -259,7 +306,7 @@ def test_the_middle_point_sits_at_p0(implementation):
     single = np.zeros((1, 1, 9, 9))
     single[0, 0, 4, 4] = 1.0
     p, n = vectors(9, 9, **{"4,4": (-3.0, 1.0)}), vectors(9, 9, **{"4,4": (2.0, 2.0)})
-    out = scatter(implementation, single, np.ones_like(single), p, n, degree=1, samples=1, fill=np.zeros_like(single))
+    out = scatter(implementation, single, np.ones_like(single), p, n, degree=1, samples=1, fill=np.zeros_like(single), composite="sum")
     expected = np.zeros((9, 9))
     splat(expected, 4 - 0.5, 4 + 1.5, 1.0)
     np.testing.assert_allclose(out[0, 0], expected, atol=1e-12)
@@ -269,13 +316,14 @@ def test_the_middle_point_sits_at_p0(implementation):
 @pytest.mark.parametrize("degree", [2, 3])
 def test_points_lie_on_the_polynomial_through_the_given_positions(implementation, degree):
     """Three points (t = -2/3, 0, 2/3) of one bright pixel's curve, each a bilinear splat of 1/3 (box
-    shutter), against the positions of the Lagrange polynomial through p(-1), [p(-1/2),] p(0), p(1)."""
+    shutter, composite="sum": added to the still black pixels), against the positions of the Lagrange
+    polynomial through p(-1), [p(-1/2),] p(0), p(1)."""
     x = np.array([12.0, 12.0])
     given = {-1.0: (-9.3, 4.1), 1.0: (8.7, 5.6), -0.5: (-3.1, -2.2)}
     color = np.zeros((1, 1, 24, 24))
     color[0, 0, 12, 12] = 1.0
     prev, nxt = vectors(24, 24, **{"12,12": given[-1.0]}), vectors(24, 24, **{"12,12": given[1.0]})
-    options = dict(degree=degree, samples=3, shutter="box", fill=np.zeros_like(color))
+    options = dict(degree=degree, samples=3, shutter="box", fill=np.zeros_like(color), composite="sum")
     times = [-1.0, 0.0, 1.0]
     if degree == 3:
         options["offset_mid_prev"] = vectors(24, 24, **{"12,12": given[-0.5]})
@@ -289,11 +337,12 @@ def test_points_lie_on_the_polynomial_through_the_given_positions(implementation
 
 
 def test_a_bright_pixel_deposits_its_energy_along_the_curve_not_the_chord(backend):
-    """p(t) = (16 + 10 t, 6 + 8 t^2): a parabola whose chord from p(-1) to p(1) is the row y = 14."""
+    """p(t) = (16 + 10 t, 6 + 8 t^2): a parabola whose chord from p(-1) to p(1) is the row y = 14
+    (composite="sum": the splats add to the still black pixels, so their sum is the energy)."""
     color = np.zeros((1, 1, 24, 32))
     color[0, 0, 6, 16] = 1.0
     prev, nxt = vectors(24, 32, **{"6,16": (-10.0, 8.0)}), vectors(24, 32, **{"6,16": (10.0, 8.0)})
-    options = dict(shutter="box", fill=np.zeros_like(color), max_samples=64)
+    options = dict(shutter="box", fill=np.zeros_like(color), max_samples=64, composite="sum")
     curved = scatter(backend.name, color, np.ones_like(color), prev, nxt, **options)[0, 0]
     straight = scatter(backend.name, color, np.ones_like(color), prev, nxt, degree=1, **options)[0, 0]
     rows, columns = np.mgrid[0:24, 0:32].astype(float)

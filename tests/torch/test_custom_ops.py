@@ -50,7 +50,8 @@ OPS = {
     ),
     "bezier_scatter": (
         # fill="color": the push-pull fill (tensor ops around the kernel) would double the graphs.
-        lambda c, v, z, taps: torch_impl.bezier_scatter(c, z, -v, v, samples=taps, fill="color"),
+        # composite="layers": all on the kernel ("instants", the default, splats its instants as tensor ops)
+        lambda c, v, z, taps: torch_impl.bezier_scatter(c, z, -v, v, samples=taps, fill="color", composite="layers"),
         torch.ops.diffblur.splat_forward,
         torch.ops.diffblur.splat_backward,
     ),
@@ -140,7 +141,7 @@ def test_compiled_fused_op_is_its_kernel_calls_and_matches_eager(op):
         out, grads = _run(compiled, taps, torch.float64)
         assert len(graphs.forward) == len(graphs.backward) == 1
         (forward_graph,), (backward_graph,) = graphs.forward, graphs.backward
-        # bezier_scatter's default composite="layers" splats three times (its depths, negated, none).
+        # bezier_scatter's composite="layers" splats three times (its depths, negated, none).
         kernels = 3 if op == "bezier_scatter" else 1
         assert _calls(forward_graph, forward) == kernels and _calls(backward_graph, backward) == kernels
         sizes.append((len(forward_graph.nodes), len(backward_graph.nodes)))
