@@ -36,6 +36,7 @@ METHODS: dict[str, Callable[..., Any]] = {
     "reconstruct": lambda o, x, s: o.reconstruct(x["color"], x["velocity"], x["depth"], shutter=s),
     "reconstruct, own directions": lambda o, x, s: o.reconstruct(x["color"], x["velocity"], x["depth"], shutter=s, directions="neighbor_and_own"),
     "bezier_scatter": lambda o, x, s: o.bezier_scatter(x["color"], x["depth"], x["offset_prev"], x["offset_next"], shutter=s),
+    "bezier_scatter, composite layers": lambda o, x, s: o.bezier_scatter(x["color"], x["depth"], x["offset_prev"], x["offset_next"], shutter=s, composite="layers"),
     "bezier_scatter, composite sum": lambda o, x, s: o.bezier_scatter(x["color"], x["depth"], x["offset_prev"], x["offset_next"], shutter=s, composite="sum"),
     "bezier_scatter, background": lambda o, x, s: o.bezier_scatter(x["color"], x["depth"], x["offset_prev"], x["offset_next"], shutter=s, fill=x["background"]),
     "warp_blend": lambda o, x, s: o.warp_blend(x["color"], x["velocity"]),

@@ -387,14 +387,16 @@ DOC = """Scatter every moving pixel's colour along its curved path over the expo
     the pixels around them, where the source is in front of or within the depth band behind the
     destination's depth (seed 000's softDepthCompare; no depth write), and summed into A (colour)
     and alpha (weight). Still pixels, whose point moves at most `diffblur.conventions.STILL_SPEED`
-    px (a renderer's float leftovers included), are skipped (a mask: shapes never depend on data).
+    px (a renderer's float leftovers included), splat nothing (a mask: shapes never depend on data).
 
     Normalisation, with f = color where the pixel is still and, where it moves, the `fill`:
 
     - "coverage" (default): every moving point spreads total weight 1 over its exposure, so alpha is
       the fraction of the exposure something covers the pixel; out = A + (1 - alpha) f where
       alpha <= 1, A / alpha where alpha > 1. Closer to the ground truth than "paper" on the
-      presets measured, with every fill (docs/methods.md).
+      presets measured, with every fill (docs/methods.md). That is composite="sum"; the default
+      composite="instants" instead depth-tests each instant on its own, every pixel splatting
+      (the still ones where they are), see `composite`.
     - "paper": seed 003 eq. 4, out = (A + w_b f) / (alpha + w_b), with the points weighted per
       pixel of path length (2 m_k |p'(t_k)|, 1 per pixel for the box shutter), as rasterised lines
       deposit them, and w_b = `background_weight`.
@@ -425,8 +427,8 @@ DOC = """Scatter every moving pixel's colour along its curved path over the expo
             (push-pull: the still pixels' colours averaged over 2 x 2 blocks down to one pixel, then
             filled back in from coarse to fine where a block has no still pixel; the pixel's own
             colour where the image has none, with a UserWarning in eager mode, once per process;
-            there, with composite="layers", what passes behind the pixel comes first, see
-            `composite`). "color": its own colour. A (B, C, H, W) array: the static scene behind the
+            there composite="instants" fills each instant from its own picture and "layers" with
+            what passes behind the pixel, see `composite`). "color": its own colour. A (B, C, H, W) array: the static scene behind the
             moving objects (seed 003 sec. 5.1's two-layer extension). "still" is the default because
             a moving object uncovers what is behind it, which the still pixels show better than the
             object's own colour does (measured on the presets: docs/methods.md). Still pixels in
@@ -438,21 +440,31 @@ DOC = """Scatter every moving pixel's colour along its curved path over the expo
             depth, a number > 0 or a 0-d array: a splat counts fully up to level with the
             destination, fading linearly in log depth to nothing at z_source = z_dest (1 + r), so
             that the output does not depend on the scene's depth units.
-        composite: how "coverage" composites a moving pixel's splats. "layers" (default): front to
-            back, each layer over what is behind it by its coverage: the splats from sources nearer
-            than the depth band in front, those level with the pixel, those from behind it (which a
-            depth test without depth write drops; they are what the pixel shows once its own surface
-            has moved off it: what a moving camera or a moving object uncovers), then the fill.
-            Where fill="still" finds no still pixel in an image, the behind splats are weighed
-            against the pixel's own colour as (A_behind + m C) / (alpha_behind + m), m = 1 / samples
-            (one point's mean mass): wherever something passes behind, that is what it uncovers.
-            "sum": seed 003's one sum of the splats the depth test passes, over the fill, where
-            splats that overlap in the exposure are averaged whatever their depth. Still pixels keep
-            the sum in both (they are their own level layer, in front of what passes behind them);
-            "paper" has no layers. "layers" splats three times (nearer, passed, all).
+        composite: how "coverage" composites the splats. "instants" (default): each point time on
+            its own, as the camera sees it: at instant t_k every pixel's point lands where it is
+            then (a still pixel's where it is), each pixel shows the nearest of the points on it
+            (within the depth band behind the nearest splat weighing more than
+            NEAREST_SPLAT_WEIGHT = 1/4), the part of the pixel they leave shows the others up to
+            their coverage, and the rest what passes behind the pixel over the exposure (the behind
+            splats of "layers") over the fill; the instants are summed by the shutter's masses.
+            Where fill="still" finds no still pixel in an image (a moving camera), an instant's
+            uncovered pixels take a push-pull of that instant's own picture, its pixels weighted by
+            coverage x (depth / farthest depth)^3: what a moving camera uncovers lies behind what
+            surrounds it. "layers": front to back over the whole exposure, each layer over what is
+            behind it by its coverage: the splats from sources nearer than the depth band in front,
+            those level with the pixel, those from behind it (which a depth test without depth
+            write drops; they are what the pixel shows once its own surface has moved off it), then
+            the fill; without a still pixel the behind splats are weighed against the pixel's own
+            colour as (A_behind + m C) / (alpha_behind + m), m = 1 / samples. "sum": seed 003's one
+            sum of the splats the depth test passes, over the fill, where splats that overlap in the
+            exposure are averaged whatever their depth. Still pixels keep the sum in "layers" and
+            "sum" (their own level layer, in front of what passes behind them); "paper" has no
+            composite. "instants" splats twice on the kernel (what passes behind) and its instants
+            as tensor ops; "layers" three times. Measured in docs/defaults.md.
         impl: "auto" (default): the splats and their backward on the fused CPU kernel
             (`diffblur.kernels.scatter`, numba: one parallel loop each, O(pixels) memory) where it
-            applies, the tensor ops elsewhere; the normalisation and the fill stay tensor ops.
+            applies, the tensor ops elsewhere; the normalisation, the fill and composite="instants"'s
+            instants stay tensor ops.
             "fused": the kernel, or a ValueError naming what it does not cover. "tensor": always
             the tensor ops. The kernel covers CPU float32/float64 images, every path and shutter;
             in PyTorch eagerly and under torch.compile (custom operators), in JAX under jax.jit and
@@ -472,7 +484,7 @@ DOC = """Scatter every moving pixel's colour along its curved path over the expo
 CHUNK_PIXEL_POINTS = 1 << 18
 
 #: The static arguments of the scatter's core (`_scatter`), which JAX compiles whole.
-CORE_STATIC = ("be", "kind", "degree", "paper", "background_weight", "fill", "composite", "log_depth", "fused")
+CORE_STATIC = ("be", "kind", "degree", "paper", "background_weight", "fill", "composite", "fill_from_instants", "log_depth", "fused")
 
 
 def bezier_scatter(
@@ -510,8 +522,8 @@ def bezier_scatter(
     wide = position_dtype(be, color.dtype)
     given = {name: be.astype(value, wide) for name, value in given.items()}
     samples = o.samples if o.samples is not None else point_count(_longest(be, kind, _terms(kind, o.degree, given), color), o.max_samples)
-    if o.fill == "still" and background is None:
-        _warn_without_still(be, kind, o.degree, given, color)
+    # Whether composite="instants" needs each instant's own fill (an image without a still pixel).
+    fill_from_instants = o.fill == "still" and background is None and _warn_without_still(be, kind, o.degree, given, color)
     if has_constant_parameters(o.window):
         masses = be.asarray(be.constant(constant_masses, o.window, samples), wide, color)
     else:  # a shape parameter being fitted: the masses carry its gradient
@@ -532,6 +544,7 @@ def bezier_scatter(
         background_weight=o.background_weight,
         fill=o.fill if background is None else "array",
         composite=o.composite,
+        fill_from_instants=fill_from_instants,
         log_depth=relative,
         fused=fused,
     )
@@ -594,13 +607,16 @@ def _longest(be: Any, kind: str, terms: tuple, like: Any) -> float:
     return float(longest)
 
 
-def _warn_without_still(be: Any, kind: str, degree: int, given: dict, like: Any) -> None:
-    """fill="still"'s warning when an image has no still pixel; eager only (concrete arrays)."""
+def _warn_without_still(be: Any, kind: str, degree: int, given: dict, like: Any) -> bool:
+    """fill="still"'s warning when an image has no still pixel, eager only (concrete arrays); whether
+    an image may have none (True where the arrays are not concrete)."""
     moved = [be.values(value) for value in _moved_by(kind, degree, given)]
     if any(value is None for value in moved):
-        return
+        return True
     y, x = np.mgrid[0 : like.shape[2], 0 : like.shape[3]].astype(np.float64)
-    warn_without_still(moving_mask(kind, tuple(np.asarray(m, dtype=np.float64) for m in moved), x[None], y[None]))
+    moving = moving_mask(kind, tuple(np.asarray(m, dtype=np.float64) for m in moved), x[None], y[None])
+    warn_without_still(moving)
+    return bool(moving.reshape(moving.shape[0], -1).all(1).any())
 
 
 def _splat(be: Any, paper: bool, kind: str, times: Any, masses: Any, terms: tuple, x: Any, y: Any, rows: Any, depth: Any, extent: Any, moving: Any) -> Any:
@@ -666,12 +682,14 @@ def _scatter(
     background_weight: float,
     fill: str,
     composite: str,
+    fill_from_instants: bool,
     log_depth: bool,
     fused: bool,
 ) -> Any:
     """The scatter after the checks (compiled whole where the backend compiles, `CORE_STATIC`):
     `given` and `masses` in `position_dtype(color.dtype)`; the splats on the fused kernel if
-    `fused`; fill "array": `background` given; `log_depth`: `depth` holds log depths (the relative
+    `fused`; fill "array": `background` given; `fill_from_instants`: with composite="instants", an
+    image may lack a still pixel (fill="still"); `log_depth`: `depth` holds log depths (the relative
     band)."""
     xp = be.xp
     _, channels, height, width = color.shape
@@ -692,7 +710,7 @@ def _scatter(
             background = color if fill == "color" else _still_fill(be, color, be.astype(xp.logical_not(moving)[:, None], color.dtype))
         passing = sums(xp.zeros_like(depth)) - sums(depth)
         behind = _over(be, passing[:, :channels], be.per_channel(passing[:, channels:], channels), be.astype(background, wide))
-        return _instants(be, color, depth, terms, masses, extent, moving, x, y, behind, kind=kind, unknown=fill == "still", log_depth=log_depth)
+        return _instants(be, color, depth, terms, masses, extent, moving, x, y, behind, kind=kind, unknown=fill_from_instants, log_depth=log_depth)
 
     def split(accumulated: Any) -> tuple[Any, Any]:
         return accumulated[:, :channels], be.per_channel(accumulated[:, channels:], channels)
@@ -738,9 +756,10 @@ def _instants(be: Any, color: Any, depth: Any, terms: tuple, masses: Any, extent
     behind = xp.where(moving[:, None], behind, be.astype(color, wide))
     no_still = xp.all(moving.reshape(batch, -1), 1) if unknown else None
     times = be.asarray(point_times(masses.shape[0]), wide, color)
-    # An instant's sums fill the image padded by a ring (three times a line image's pixels) with
-    # 2 C + 3 values, its splats four corners each: budgeted as twice the padded pixels.
-    chunk = max(1, CHUNK_PIXEL_POINTS // (2 * batch * (height + 2) * (width + 2)))
+    # Instants per chunk, by the image padded by its ring (three times a line image's pixels): each
+    # instant's intermediates, kept for the backward, come to some 600 numbers per padded pixel, so
+    # one or two at a time keep O(pixels) memory (tests/test_degenerate_memory.py).
+    chunk = max(1, CHUNK_PIXEL_POINTS // (16 * batch * (height + 2) * (width + 2)))
 
     def instant(chunk_times: Any, chunk_masses: Any, *fixed: Any) -> Any:
         return _instant_pictures(be, kind, chunk_times, chunk_masses, *fixed)
@@ -754,12 +773,12 @@ def _instant_pictures(
     be: Any, kind: str, times: Any, masses: Any, terms: tuple, x: Any, y: Any, moving: Any, rows: Any, depth: Any, extent: Any, behind: Any, no_still: Any
 ) -> Any:
     """The sum over `times` (K,) of masses x what the camera sees at each instant (B, C, H, W):
-    every pixel's point splatted bilinearly (the still ones where they are) onto the image padded
-    by a ring of one pixel; per destination the nearest depth among splats weighing more than
-    NEAREST_SPLAT_WEIGHT; the splats within the band behind it summed; over the fill."""
+    every moving pixel's point splatted bilinearly onto the image padded by a ring of one pixel; on
+    a still pixel only where the depth test against it passes (seed 003's: it is the layer behind);
+    per destination the nearest depth among splats weighing more than NEAREST_SPLAT_WEIGHT; the
+    splats within the band behind it, beside the others, over `behind` (a still pixel: itself)."""
     xp = be.xp
     px, py = curve_position(kind, terms, x, y, times.reshape(-1, 1, 1, 1), xp)
-    px, py = xp.where(moving[None], px, x), xp.where(moving[None], py, y)
     count, batch, height, width = px.shape
     channels = rows.shape[1] - 2
     x0, y0 = be.stop_gradient(xp.floor(px)), be.stop_gradient(xp.floor(py))
@@ -770,9 +789,14 @@ def _instant_pictures(
     first = (be.arange(count * batch, be.integer, rows) * plane).reshape(count, batch, 1, 1)
     top_left = first + (be.index(xp.where(near, y0, -1.0)) + 1) * stride + be.index(xp.where(near, x0, -1.0)) + 1
     index = xp.stack([top_left, top_left + 1, top_left + stride, top_left + stride + 1]).reshape(-1)
-    bilinear = xp.where(near[None], xp.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy]), 0.0)
+    bilinear = xp.where((near & moving[None])[None], xp.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy]), 0.0)
     source = xp.zeros_like(bilinear) + be.astype(depth, bilinear.dtype)[None, None, :, 0]
     extent = be.astype(extent, bilinear.dtype) if be.is_array(extent) else extent
+    # The destination's depth and whether it is still, in the padded image of its batch item.
+    padded = be.pad(be.concat([be.astype(depth, bilinear.dtype), be.astype(xp.logical_not(moving)[:, None], bilinear.dtype)], 1), ((0, 0), (0, 0), (1, 1), (1, 1)), mode="edge")
+    at = index % (batch * plane)
+    destination_depth, destination_still = (be.permute(padded[:, k : k + 1], (1, 0, 2, 3)).reshape(-1)[at].reshape(bilinear.shape) for k in (0, 1))
+    bilinear = bilinear * xp.where(destination_still > 0, soft_depth_compare(be, destination_depth, source, extent), 1.0)
     size = count * batch * plane
     nearest = be.scatter_min(size, index, xp.where(bilinear > NEAREST_SPLAT_WEIGHT, source, math.inf).reshape(-1))
     omega = bilinear * be.astype(soft_depth_compare(be, nearest[index].reshape(bilinear.shape), source, extent), bilinear.dtype)

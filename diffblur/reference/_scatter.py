@@ -317,8 +317,8 @@ def bezier_scatter(
 
 
 def _instants(color, depth, log_depths, curve, times, masses, extent, behind, unknown) -> np.ndarray:
-    """composite="instants": per instant t_k, every pixel's point (a still one where it is) splats
-    bilinearly; a destination's nearest depth is the least among splats of bilinear weight above
+    """composite="instants": per instant t_k, every moving pixel's point splats bilinearly (onto a
+    still pixel times the depth test against it, seed 003's); a destination's nearest depth is the least among splats of bilinear weight above
     NEAREST_SPLAT_WEIGHT; the splats within the band behind it are summed (A, alpha, and the sum of
     log depths); the part of the pixel they leave (1 - alpha) shows the other splats up to their
     coverage, then `behind`; over 1, A / alpha; the instants summed by their masses. `unknown` (fill="still"):
@@ -335,8 +335,13 @@ def _instants(color, depth, log_depths, curve, times, masses, extent, behind, un
             for i in range(height):
                 for j in range(width):
                     is_moving, position, _ = curves[b][i][j]
-                    x, y = position(t) if is_moving else (float(j), float(i))
-                    splats.extend((row, column, weight, i, j) for row, column, weight in _bilinear_splat(x, y, height, width))
+                    if not is_moving:
+                        continue
+                    x, y = position(t)
+                    for row, column, weight in _bilinear_splat(x, y, height, width):
+                        if not curves[b][row][column][0]:  # a still pixel is the layer behind: seed 003's depth test
+                            weight *= _soft_in_front(depth[b, 0, row, column], depth[b, 0, i, j], extent)
+                        splats.append((row, column, weight, i, j))
             nearest = np.full((height, width), np.inf)
             for row, column, weight, i, j in splats:
                 if weight > NEAREST_SPLAT_WEIGHT:
