@@ -83,6 +83,7 @@ DEFAULT_NORMALIZATION = "coverage"
 #: push-pull (Gortler et al. 1996: sums of colour and weight pooled 2 x 2 down to one pixel, then each
 #: level's mean where it has weight, blended with the coarser level bilinearly upsampled where it has
 #: less than one pixel's weight). Where the image has no still pixel (a moving camera), with
+#: composite="instants": each instant's own push-pull (`COMPOSITES`); with
 #: composite="layers": the splats that pass behind the pixel, weighed against its own colour as
 #: (A_behind + m color) / (alpha_behind + m), m = 1 / samples (one point's mean mass), so that
 #: wherever something passes behind it, that is what it uncovers; with "sum", its own colour.
@@ -95,10 +96,12 @@ FILLS = ("still", "color")
 #: the squared error that the true background removes.
 DEFAULT_FILL = "still"
 #: How normalization="coverage" composites the splats. "instants": every point time on its own, as a
-#: camera sees it: at instant t_k each pixel shows the nearest of the points that land on it at t_k
-#: (every pixel splats, the still ones where they are; a splat counts where its source is within the
-#: depth band behind the nearest one there with bilinear weight above NEAREST_SPLAT_WEIGHT), over the
-#: fill for the part nothing covers; the instants summed by the shutter's masses. With fill="still"
+#: camera sees it: at instant t_k each pixel shows the nearest of the moving points that land on it
+#: at t_k (a splat counts where its source is within the depth band behind the nearest one there
+#: with bilinear weight above NEAREST_SPLAT_WEIGHT; on a still pixel only where seed 003's depth
+#: test against it passes, the still pixel being the layer behind), the other splats in the part of
+#: the pixel those leave, then what passes behind the pixel over the exposure (the behind splats of
+#: "layers") over the fill; the instants summed by the shutter's masses. With fill="still"
 #: in an image without a still pixel (a moving camera), each instant's uncovered pixels take a
 #: push-pull of that instant's own picture, its pixels weighted by coverage x (depth / farthest
 #: depth)^UNCOVERED_DEPTH_POWER: what an instant uncovers lies behind what surrounds it.
@@ -441,12 +444,13 @@ DOC = """Scatter every moving pixel's colour along its curved path over the expo
             destination, fading linearly in log depth to nothing at z_source = z_dest (1 + r), so
             that the output does not depend on the scene's depth units.
         composite: how "coverage" composites the splats. "instants" (default): each point time on
-            its own, as the camera sees it: at instant t_k every pixel's point lands where it is
-            then (a still pixel's where it is), each pixel shows the nearest of the points on it
-            (within the depth band behind the nearest splat weighing more than
-            NEAREST_SPLAT_WEIGHT = 1/4), the part of the pixel they leave shows the others up to
-            their coverage, and the rest what passes behind the pixel over the exposure (the behind
-            splats of "layers") over the fill; the instants are summed by the shutter's masses.
+            its own, as the camera sees it: at instant t_k every moving pixel's point lands where
+            it is then, each pixel shows the nearest of the points on it (within the depth band
+            behind the nearest splat weighing more than NEAREST_SPLAT_WEIGHT = 1/4; on a still
+            pixel, the layer behind, only those that pass seed 003's depth test against it), the
+            part of the pixel they leave shows the others up to their coverage, and the rest what
+            passes behind the pixel over the exposure (the behind splats of "layers") over the fill
+            (a still pixel: itself); the instants are summed by the shutter's masses.
             Where fill="still" finds no still pixel in an image (a moving camera), an instant's
             uncovered pixels take a push-pull of that instant's own picture, its pixels weighted by
             coverage x (depth / farthest depth)^3: what a moving camera uncovers lies behind what

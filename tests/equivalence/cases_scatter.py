@@ -1,7 +1,8 @@
 """Equivalence cases of the Bezier scatter (seed 003); `cases.CASES` includes them.
 
-Six cases cover degrees 1, 2 and 3, the arc, both normalisations, both fills and the background, both
-composites (the cubic's is "sum"), a shutter shape parameter and the soft depth extent, with small
+Seven cases cover degrees 1, 2 and 3, the arc, both normalisations, both fills and the background, the
+three composites ("instants", the default; the cubic's "sum"; one quadratic's "layers"), a shutter
+shape parameter and the soft depth extent, with small
 images (6 x 7) and 5 points per curve so that the full-Jacobian gradcheck and the compilations stay
 cheap.
 Offsets are random and never exactly 0 (a still pixel is skipped, a kink the finite differences of
@@ -104,6 +105,7 @@ CASES = [
     _case("bezier_scatter_quadratic_batch", lambda rng: _scene(rng, batch=2), _FIELDS),
     _case("bezier_scatter_linear_paper", _scene, _FIELDS, degree=1, normalization="paper", background_weight=2.0, shutter="trapezoid", fill="color"),
     _case("bezier_scatter_still_fill", _with_still_pixels, ("color", "depth")),
+    _case("bezier_scatter_layers", _with_still_pixels, ("color", "depth"), composite="layers"),
     _case("bezier_scatter_cubic", _cubic, (*_FIELDS, "offset_mid_prev"), degree=3, shutter="tent", composite="sum"),
     _case(
         "bezier_scatter_arc_background",
