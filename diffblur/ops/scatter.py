@@ -760,9 +760,10 @@ def _instants(be: Any, color: Any, depth: Any, terms: tuple, masses: Any, extent
     behind = xp.where(moving[:, None], behind, be.astype(color, wide))
     no_still = xp.all(moving.reshape(batch, -1), 1) if unknown else None
     times = be.asarray(point_times(masses.shape[0]), wide, color)
-    # Instants per chunk, by the image padded by its ring (three times a line image's pixels): each
-    # instant's intermediates, kept for the backward, come to some 600 numbers per padded pixel, so
-    # one or two at a time keep O(pixels) memory (tests/test_degenerate_memory.py).
+    # Instants per chunk, by the image padded by its ring (three times a line image's pixels): an
+    # instant's intermediates, kept for the backward, come to some 200 numbers per padded pixel
+    # (10 MB on 1x4097), so one or two at a time keep the peak O(pixels) and small
+    # (tests/test_degenerate_memory.py).
     chunk = max(1, CHUNK_PIXEL_POINTS // (16 * batch * (height + 2) * (width + 2)))
 
     def instant(chunk_times: Any, chunk_masses: Any, *fixed: Any) -> Any:
