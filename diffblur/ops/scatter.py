@@ -769,13 +769,16 @@ def _instants(be: Any, color: Any, depth: Any, terms: tuple, masses: Any, extent
     def instant(chunk_times: Any, chunk_masses: Any, *fixed: Any) -> Any:
         return _instant_pictures(be, kind, chunk_times, chunk_masses, *fixed)
 
+    # Each destination's depth and whether it is still, on the padded images, flat: (B (H + 2) (W + 2), 2).
+    destinations = be.pad(be.concat([be.astype(depth, wide), be.astype(xp.logical_not(moving)[:, None], wide)], 1), ((0, 0), (0, 0), (1, 1), (1, 1)), mode="edge")
+    destinations = be.permute(destinations, (0, 2, 3, 1)).reshape(-1, 2)
     start = be.zeros((batch, channels, height, width), wide, color)
-    fixed = (terms, x[None], y[None], moving, rows, depth, extent, behind, no_still)
+    fixed = (terms, x[None], y[None], moving, rows, depth, destinations, extent, behind, no_still)
     return be.astype(be.sum_chunks(instant, times, masses, chunk, fixed, start), color.dtype)
 
 
 def _instant_pictures(
-    be: Any, kind: str, times: Any, masses: Any, terms: tuple, x: Any, y: Any, moving: Any, rows: Any, depth: Any, extent: Any, behind: Any, no_still: Any
+    be: Any, kind: str, times: Any, masses: Any, terms: tuple, x: Any, y: Any, moving: Any, rows: Any, depth: Any, destinations: Any, extent: Any, behind: Any, no_still: Any
 ) -> Any:
     """The sum over `times` (K,) of masses x what the camera sees at each instant (B, C, H, W):
     every moving pixel's point splatted bilinearly onto the image padded by a ring of one pixel; on
@@ -797,10 +800,8 @@ def _instant_pictures(
     bilinear = xp.where((near & moving[None])[None], xp.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy]), 0.0)
     source = xp.zeros_like(bilinear) + be.astype(depth, bilinear.dtype)[None, None, :, 0]
     extent = be.astype(extent, bilinear.dtype) if be.is_array(extent) else extent
-    # The destination's depth and whether it is still, in the padded image of its batch item.
-    padded = be.pad(be.concat([be.astype(depth, bilinear.dtype), be.astype(xp.logical_not(moving)[:, None], bilinear.dtype)], 1), ((0, 0), (0, 0), (1, 1), (1, 1)), mode="edge")
-    at = index % (batch * plane)
-    destination_depth, destination_still = (be.permute(padded[:, k : k + 1], (1, 0, 2, 3)).reshape(-1)[at].reshape(bilinear.shape) for k in (0, 1))
+    destination = destinations[index % (batch * plane)]
+    destination_depth, destination_still = (destination[:, k].reshape(bilinear.shape) for k in (0, 1))
     bilinear = bilinear * xp.where(destination_still > 0, soft_depth_compare(be, destination_depth, source, extent), 1.0)
     size = count * batch * plane
     nearest = be.scatter_min(size, index, xp.where(bilinear > NEAREST_SPLAT_WEIGHT, source, math.inf).reshape(-1))
