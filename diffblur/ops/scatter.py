@@ -398,8 +398,7 @@ DOC = """Scatter every moving pixel's colour along its curved path over the expo
       the fraction of the exposure something covers the pixel; out = A + (1 - alpha) f where
       alpha <= 1, A / alpha where alpha > 1. Closer to the ground truth than "paper" on the
       presets measured, with every fill (docs/methods.md). That is composite="sum"; the default
-      composite="instants" instead depth-tests each instant on its own, every pixel splatting
-      (the still ones where they are), see `composite`.
+      composite="instants" instead depth-tests each instant on its own, see `composite`.
     - "paper": seed 003 eq. 4, out = (A + w_b f) / (alpha + w_b), with the points weighted per
       pixel of path length (2 m_k |p'(t_k)|, 1 per pixel for the box shutter), as rasterised lines
       deposit them, and w_b = `background_weight`.
@@ -629,27 +628,38 @@ def _splat(be: Any, paper: bool, kind: str, times: Any, masses: Any, terms: tupl
     of one pixel, which catches the corners just outside the image (the caller crops it)."""
     xp = be.xp
     px, py, vx, vy = curve_point(kind, terms, x, y, times.reshape(-1, 1, 1, 1), xp)
-    points, batch, height, width = px.shape
+    points = px.shape[0]
     weight = xp.where(moving[None], masses.reshape(-1, 1, 1, 1), 0.0)
     if paper:  # weight per pixel of path length: |dp| = |dp/dt| dt, with dt = 2 / count ~ 2 mass
         weight = weight * (2.0 * _safe_hypot(be, vx, vy))
-    x0, y0 = be.stop_gradient(xp.floor(px)), be.stop_gradient(xp.floor(py))
-    fx, fy = px - x0, py - y0
-    # Points with a corner in the image have their top-left corner in the padded image.
-    near = (x0 >= -1) & (x0 <= width - 1) & (y0 >= -1) & (y0 <= height - 1)
+    index, bilinear, near = _padded_corners(be, px, py, per_point=False, like=rows)
     weight = xp.where(near, weight, 0.0)
-    stride = width + 2
-    first = (be.arange(batch, be.integer, rows) * ((height + 2) * stride)).reshape(1, batch, 1, 1)
-    top_left = first + (be.index(xp.where(near, y0, -1.0)) + 1) * stride + be.index(xp.where(near, x0, -1.0)) + 1
-    # The four pixels around each point, stacked in front: (4, K, B, H, W).
-    index = xp.stack([top_left, top_left + 1, top_left + stride, top_left + stride + 1]).reshape(-1)
-    bilinear = xp.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
     padded_depth = be.pad(depth, ((0, 0), (0, 0), (1, 1), (1, 1)), mode="edge")
     destination_depth = padded_depth.reshape(-1)[index].reshape(bilinear.shape)
     in_front = be.astype(soft_depth_compare(be, destination_depth, depth[None, None, :, 0], extent), bilinear.dtype)
     omega = bilinear * in_front * weight[None]
     values = (omega.reshape(4 * points, -1, 1) * rows[None]).reshape(-1, rows.shape[1])
     return be.scatter_add(math.prod(padded_depth.shape), index, values)
+
+
+def _padded_corners(be: Any, px: Any, py: Any, *, per_point: bool, like: Any) -> tuple[Any, Any, Any]:
+    """The four pixels around each point at (px, py) (K, B, H, W) on images padded by a ring of one
+    pixel, which catches the corners just outside the image: their flat indices (4 K B H W,) into
+    one padded image per batch item, or per point and batch item (`per_point`), their bilinear
+    weights (4, K, B, H, W), and whether the point has a corner in the image (K, B, H, W)."""
+    xp = be.xp
+    points, batch, height, width = px.shape
+    x0, y0 = be.stop_gradient(xp.floor(px)), be.stop_gradient(xp.floor(py))
+    fx, fy = px - x0, py - y0
+    # Points with a corner in the image have their top-left corner in the padded image.
+    near = (x0 >= -1) & (x0 <= width - 1) & (y0 >= -1) & (y0 <= height - 1)
+    stride = width + 2
+    images = points * batch if per_point else batch
+    first = (be.arange(images, be.integer, like) * ((height + 2) * stride)).reshape(-1 if per_point else 1, batch, 1, 1)
+    top_left = first + (be.index(xp.where(near, y0, -1.0)) + 1) * stride + be.index(xp.where(near, x0, -1.0)) + 1
+    index = xp.stack([top_left, top_left + 1, top_left + stride, top_left + stride + 1]).reshape(-1)
+    bilinear = xp.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
+    return index, bilinear, near
 
 
 def _splat_sums(be: Any, color: Any, depth: Any, terms: tuple, masses: Any, extent: Any, moving: Any, x: Any, y: Any, *, kind: str, paper: bool, passes: int) -> Any:
@@ -708,21 +718,20 @@ def _scatter(
             return be.run_kernel("bezier_scatter", color, depth, kind, terms, masses, extent, moving, paper)
         return _splat_sums(be, color, depth, terms, masses, extent, moving, x, y, kind=kind, paper=paper, passes=1 if paper or composite == "sum" else 3)
 
-    if composite == "instants" and not paper:
-        # A moving pixel's uncovered time: what passes behind it over the exposure, over the fill.
-        if background is None:
-            background = color if fill == "color" else _still_fill(be, color, be.astype(xp.logical_not(moving)[:, None], color.dtype))
-        passing = sums(xp.zeros_like(depth)) - sums(depth)
-        behind = _over(be, passing[:, :channels], be.per_channel(passing[:, channels:], channels), be.astype(background, wide))
-        return _instants(be, color, depth, terms, masses, extent, moving, x, y, behind, kind=kind, unknown=fill_from_instants, log_depth=log_depth)
-
     def split(accumulated: Any) -> tuple[Any, Any]:
         return accumulated[:, :channels], be.per_channel(accumulated[:, channels:], channels)
 
-    accumulated = sums(depth)
-    splatted, alpha = split(accumulated)
     if background is None:
         background = color if fill == "color" else _still_fill(be, color, be.astype(xp.logical_not(moving)[:, None], color.dtype))
+    if composite == "instants" and not paper:
+        # A moving pixel's uncovered time: what passes behind it over the exposure, over the fill; a
+        # still pixel shows itself behind what passes in front of it, as in the other composites.
+        passing = sums(xp.zeros_like(depth)) - sums(depth)
+        behind = xp.where(moving[:, None], _over(be, *split(passing), be.astype(background, wide)), be.astype(color, wide))
+        return _instants(be, color, depth, terms, masses, extent, moving, x, y, behind, kind=kind, unknown=fill_from_instants, log_depth=log_depth)
+
+    accumulated = sums(depth)
+    splatted, alpha = split(accumulated)
     behind = be.astype(xp.where(moving[:, None], background, color), wide)
     if paper:
         return be.astype((splatted + background_weight * behind) / (alpha + background_weight), color.dtype)
@@ -747,7 +756,7 @@ def _scatter(
 def _instants(be: Any, color: Any, depth: Any, terms: tuple, masses: Any, extent: Any, moving: Any, x: Any, y: Any, behind: Any, *, kind: str, unknown: bool, log_depth: bool) -> Any:
     """composite="instants" (`COMPOSITES`): each point time depth-tested on its own, in chunks of
     instants (`Backend.sum_chunks`: O(pixels) memory with a gradient), the instants summed by their
-    masses, over `behind` where nothing covers a pixel; `unknown` (fill="still"): an image without
+    masses, over `behind` (B, C, H, W) where nothing covers a pixel; `unknown` (fill="still"): an image without
     a still pixel fills each instant from itself instead."""
     xp = be.xp
     batch, channels, height, width = color.shape
@@ -756,8 +765,6 @@ def _instants(be: Any, color: Any, depth: Any, terms: tuple, masses: Any, extent
     # Rows of [color, 1, log depth] per source pixel: one scatter-add sums colour, coverage and the
     # depth that the uncovered fill weighs.
     rows = be.astype(be.permute(be.concat([color, xp.ones_like(depth), log], 1), (0, 2, 3, 1)).reshape(-1, channels + 2), wide)
-    # A still pixel shows itself behind what passes in front of it, as in the other composites.
-    behind = xp.where(moving[:, None], behind, be.astype(color, wide))
     no_still = xp.all(moving.reshape(batch, -1), 1) if unknown else None
     times = be.asarray(point_times(masses.shape[0]), wide, color)
     # Instants per chunk, by the image padded by its ring (three times a line image's pixels): an
@@ -789,16 +796,10 @@ def _instant_pictures(
     px, py = curve_position(kind, terms, x, y, times.reshape(-1, 1, 1, 1), xp)
     count, batch, height, width = px.shape
     channels = rows.shape[1] - 2
-    x0, y0 = be.stop_gradient(xp.floor(px)), be.stop_gradient(xp.floor(py))
-    fx, fy = px - x0, py - y0
-    near = (x0 >= -1) & (x0 <= width - 1) & (y0 >= -1) & (y0 <= height - 1)
-    stride = width + 2
-    plane = (height + 2) * stride
-    first = (be.arange(count * batch, be.integer, rows) * plane).reshape(count, batch, 1, 1)
-    top_left = first + (be.index(xp.where(near, y0, -1.0)) + 1) * stride + be.index(xp.where(near, x0, -1.0)) + 1
-    index = xp.stack([top_left, top_left + 1, top_left + stride, top_left + stride + 1]).reshape(-1)
-    bilinear = xp.where((near & moving[None])[None], xp.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy]), 0.0)
-    source = xp.zeros_like(bilinear) + be.astype(depth, bilinear.dtype)[None, None, :, 0]
+    plane = (height + 2) * (width + 2)
+    index, bilinear, near = _padded_corners(be, px, py, per_point=True, like=rows)
+    bilinear = xp.where((near & moving[None])[None], bilinear, 0.0)
+    source = be.astype(depth, bilinear.dtype)[None, None, :, 0]
     extent = be.astype(extent, bilinear.dtype) if be.is_array(extent) else extent
     destination = destinations[index % (batch * plane)]
     destination_depth, destination_still = (destination[:, k].reshape(bilinear.shape) for k in (0, 1))
@@ -813,7 +814,7 @@ def _instant_pictures(
     sums = be.permute(sums, (0, 1, 4, 2, 3))
     splatted, alpha, log_sum = sums[:, :, :channels], sums[:, :, channels : channels + 1], sums[:, :, channels + 1 : channels + 2]
     hidden, hidden_alpha = sums[:, :, channels + 2 : 2 * channels + 2] - splatted, sums[:, :, 2 * channels + 2 :] - alpha
-    behind = xp.zeros_like(splatted) + behind[None]
+    behind = behind[None]
     if no_still is not None:
         behind = xp.where(no_still[None, :, None, None, None], _uncovered(be, splatted, alpha, log_sum, behind), behind)
     pictures = _beside(be, splatted, alpha, hidden, hidden_alpha, behind)
