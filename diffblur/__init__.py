@@ -8,4 +8,7 @@ ground-truth renderer) and `app` (the command, the benchmark, the demo). The PyT
 imports a framework (tests/core/test_layers.py).
 """
 
+from diffblur.checks import without_host_reads
+
+__all__ = ["without_host_reads"]
 __version__ = "0.1.0"

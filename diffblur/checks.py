@@ -9,14 +9,17 @@ jax. Every message names the argument, the value it got and what is allowed, e.g
 
 from __future__ import annotations
 
+import contextvars
 import math
 import os
 import sys
 import numbers
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 __all__ = [
+    "host_reads_allowed",
     "nonpositive_message",
     "nonfinite_message",
     "require_choice",
@@ -29,7 +32,35 @@ __all__ = [
     "require_same_dtype",
     "require_same_shape",
     "require_same_batch_and_size",
+    "without_host_reads",
 ]
+
+_HOST_READS = contextvars.ContextVar("diffblur_host_reads", default=True)
+
+
+@contextmanager
+def without_host_reads() -> Iterator[None]:
+    """A block in which the ops read no array values back to the host (Python), so that on a GPU
+    they queue their work without waiting for it: no device-to-host copy, no synchronisation.
+
+    Inside it the ops skip what needs values, as they do when compiled: the data checks (NaN or
+    infinity, non-positive depth, id ranges: bad data then gives what the formulas give, never an
+    out-of-bounds read), bezier_scatter's warning for an image without still pixels, and the
+    compaction of adaptive sampling (every tile class runs on every pixel and each tile keeps its
+    own, the same result). bezier_scatter's samples=None, which measures the curves, raises; pass
+    an int. Under jax.jit it applies where a function is traced, since the trace is cached; under
+    torch.compile it changes nothing (the compiled checks are asserts in the graph, on CPU tensors
+    only). The fused CPU kernels run on host arrays and are not affected."""
+    token = _HOST_READS.set(False)
+    try:
+        yield
+    finally:
+        _HOST_READS.reset(token)
+
+
+def host_reads_allowed() -> bool:
+    """False inside `without_host_reads`."""
+    return _HOST_READS.get()
 
 
 def _is_real_number(value: object) -> bool:

@@ -27,7 +27,10 @@ from ._runtime_error import raise_if
 
 def _data_check(x: Array, bad: Array, message: str) -> Array:
     """Raise ValueError(message) now if `bad`, or JaxRuntimeError("INVALID_ARGUMENT: " + message) at
-    run time under jit. Tests `bad`, not `x`: inside jit even a concrete x gives a traced `bad`."""
+    run time under jit; nothing inside `diffblur.without_host_reads`. Tests `bad`, not `x`: inside
+    jit even a concrete x gives a traced `bad`."""
+    if not checks.host_reads_allowed():
+        return x
     if isinstance(bad, jax.core.Tracer):
         return raise_if(x, bad, message)
     if bool(bad):
@@ -95,7 +98,10 @@ class JaxBackend(Backend):
 
     @staticmethod
     def values(x: Array) -> np.ndarray | None:
-        """x's values as NumPy when they are known now (not under jax.jit), else None."""
+        """x's values as NumPy when they are known now (not under jax.jit, not inside
+        `diffblur.without_host_reads`), else None."""
+        if not checks.host_reads_allowed():
+            return None
         try:
             return np.asarray(jax.lax.stop_gradient(x))
         except jax.errors.TracerArrayConversionError:

@@ -87,7 +87,8 @@ class TorchBackend(Backend):
         the meta device, which has shapes but no values, nothing to check."""
         if ok.device.type == "meta":
             return x
-        if not _assert_in_graph(ok, message) and not bool(ok):
+        # The switch is read only eagerly: torch.compile cannot trace a ContextVar.
+        if not _assert_in_graph(ok, message) and checks.host_reads_allowed() and not bool(ok):
             raise ValueError(message)
         return x
 
@@ -108,6 +109,8 @@ class TorchBackend(Backend):
             pass
         elif torch.compiler.is_compiling():
             _assert_in_graph(torch.isfinite(x).all(), message)
+        elif not checks.host_reads_allowed():
+            pass
         elif not bool(torch.isfinite(x.sum(dtype=torch.promote_types(x.dtype, torch.float32)))) and not bool(torch.isfinite(x).all()):
             raise ValueError(message)
         return x if carry is None else carry
@@ -120,8 +123,8 @@ class TorchBackend(Backend):
     @staticmethod
     def values(x: Tensor) -> np.ndarray | None:
         """x's values as NumPy when they are known now (eager, on a device with data), else None
-        (under torch.compile, or on the meta device)."""
-        if torch.compiler.is_compiling() or x.device.type == "meta":
+        (under torch.compile, on the meta device, or inside `diffblur.without_host_reads`)."""
+        if torch.compiler.is_compiling() or x.device.type == "meta" or not checks.host_reads_allowed():
             return None
         x = x.detach().cpu()
         return (x.float() if x.dtype == torch.bfloat16 else x).numpy()  # NumPy has no bfloat16

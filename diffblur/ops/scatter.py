@@ -605,8 +605,14 @@ def _longest(be: Any, kind: str, terms: tuple, like: Any) -> float:
     x, y = pixel_grid(be, like.shape[2], like.shape[3], like)
     terms = tuple(None if term is None else be.stop_gradient(term) for term in terms)
     longest = be.values(polyline_length(kind, terms, x[None], y[None], be.xp, be.xp.hypot).max())
-    if longest is None:  # traced, or on a device without values (PyTorch's meta device)
-        raise ValueError(traced_count_message(f"under {be.compiler}" if be.is_tracing(like) else f"on {like.device} arrays"))
+    if longest is None:  # traced, on a device without values (PyTorch's meta device), or not to be read
+        if be.is_tracing(like):
+            where = f"under {be.compiler}"
+        elif not checks.host_reads_allowed():
+            where = "inside diffblur.without_host_reads()"
+        else:
+            where = f"on {like.device} arrays"
+        raise ValueError(traced_count_message(where))
     return float(longest)
 
 
