@@ -7,7 +7,7 @@ import dataclasses
 import functools
 import inspect
 import textwrap
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any, TypeVar
 
 from diffblur import checks
@@ -30,7 +30,7 @@ class OpOptions:
         names = option_names(cls)
         for name in given:
             if name not in names:
-                raise TypeError(f"{op}() got an unknown option {name!r}; valid options: {', '.join(names)}")
+                raise TypeError(unknown_option_message(op, name, names))
         return cls(**given)
 
     def _resolve(self, name: str, value: Any) -> None:
@@ -78,16 +78,21 @@ def public(doc: str, options: type[OpOptions] | None = None, *, example: str = "
     return decorate
 
 
+def unknown_option_message(op: str, name: str, valid: Iterable[str]) -> str:
+    """The TypeError's message for an unknown keyword `name` of `op`, listing the valid ones."""
+    return f"{op}() got an unknown option {name!r}; valid options: {', '.join(valid)}"
+
+
 def _listing_keywords(function: Callable) -> Callable:
     parameters = inspect.signature(function).parameters
     known = frozenset(parameters)
-    keywords = ", ".join(p.name for p in parameters.values() if p.kind is inspect.Parameter.KEYWORD_ONLY)
+    keywords = [p.name for p in parameters.values() if p.kind is inspect.Parameter.KEYWORD_ONLY]
 
     @functools.wraps(function)
     def checked(*args: Any, **kwargs: Any) -> Any:
         for name in kwargs:
             if name not in known:
-                raise TypeError(f"{function.__name__}() got an unknown option {name!r}; valid options: {keywords}")
+                raise TypeError(unknown_option_message(function.__name__, name, keywords))
         return function(*args, **kwargs)
 
     return checked
