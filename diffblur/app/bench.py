@@ -689,7 +689,11 @@ def _markdown(results: dict) -> str:
     ]
     if results["targets"]:
         size = results["targets"][0]["size"]
-        out += [f"## Targets ({size}, uniform scene, float32, median of {results['target_repeats']} runs)", ""] + _target_lines(results["targets"]) + [""]
+        paths = (
+            "Paths: `reconstruct` by default (`jitter=\"noise\"`) reads each pixel's taps on their own; with `jitter=\"none\"` (the \"no jitter\" rows)"
+            " it reads each tile's taps as shifted rows (docs/fused.md). `bezier_scatter` runs its default `composite=\"instants\"`, whose instants are tensor ops (docs/defaults.md)."
+        )
+        out += [f"## Targets ({size}, uniform scene, float32, median of {results['target_repeats']} runs)", "", paths, ""] + _target_lines(results["targets"]) + [""]
         out += _table(results["targets"]) + [""]
     scenes = list(dict.fromkeys(r["scene"] for r in results["rows"]))
     for name in scenes:
