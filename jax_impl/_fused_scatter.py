@@ -73,3 +73,44 @@ def fused_splat(color, depth, kind: str, terms: tuple, masses, extent, moving, p
     extent = jnp.asarray(floor_extent(JAX, extent), dtype=depth.dtype)
     flags = (("arc", kind == "arc"), ("paper", paper))
     return _fused_splat_core(flags, color, depth, _path(kind, terms), masses.astype(color.dtype), extent, moving)
+
+
+def _host_instant_forward(flags, *arrays):
+    return scatter_kernel.instant_forward(*(np.asarray(a, order="C") for a in arrays), **dict(flags))
+
+
+def _host_instant_backward(flags, *arrays):
+    return scatter_kernel.instant_backward(*(np.asarray(a, order="C") for a in arrays), **dict(flags))
+
+
+@partial(jax.custom_vjp, nondiff_argnums=(0,))
+def _fused_instants_core(flags, color, log_depth, depth, path, times, extent, moving):
+    batch, channels, height, width = color.shape
+    shape = jax.ShapeDtypeStruct((times.shape[0], batch, 2 * channels + 3, height, width), color.dtype)
+    return jax.pure_callback(_bound(_host_instant_forward, flags), shape, color, log_depth, depth, path, times, extent, moving, vmap_method="sequential")
+
+
+def _fused_instants_core_fwd(flags, color, log_depth, depth, path, times, extent, moving):
+    residuals = (color, log_depth, depth, path, times, extent, moving)
+    return _fused_instants_core(flags, *residuals), residuals
+
+
+def _fused_instants_core_bwd(flags, residuals, grad_sums):
+    color, log_depth, depth, path, times, extent, moving = residuals
+    shapes = tuple(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in (color, log_depth, depth, path, extent))
+    grad_color, grad_log, grad_depth, grad_path, grad_extent = jax.pure_callback(
+        _bound(_host_instant_backward, flags), shapes, *residuals, grad_sums, vmap_method="sequential"
+    )
+    # The times are the strata's fixed midpoints: no gradient; moving is boolean: a float0 cotangent.
+    return grad_color, grad_log, grad_depth, grad_path, jnp.zeros_like(times), grad_extent, np.zeros(moving.shape, dtype=jax.dtypes.float0)
+
+
+_fused_instants_core.defvjp(_fused_instants_core_fwd, _fused_instants_core_bwd)
+
+
+def fused_instants(color, log_depth, depth, kind: str, terms: tuple, times, extent, moving):
+    """composite="instants"'s sums (K, B, 2 C + 3, H, W) at `times` (K,) on the fused kernel
+    (`diffblur.ops.scatter._instant_sums`); color, log_depth and depth in one dtype."""
+    extent = jnp.asarray(floor_extent(JAX, extent), dtype=depth.dtype)
+    flags = (("arc", kind == "arc"),)
+    return _fused_instants_core(flags, color, log_depth, depth, _path(kind, terms), times.astype(depth.dtype), extent, moving)

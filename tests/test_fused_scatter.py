@@ -177,6 +177,26 @@ def test_jax_shutter_parameter_and_extent_gradients_under_jit():
         np.testing.assert_allclose(float(f), float(p), rtol=1e-10)
 
 
+@pytest.mark.filterwarnings("ignore:bezier_scatter\\(fill='still'\\) found no still pixel")
+@pytest.mark.parametrize("band", [dict(), dict(relative_z_extent=0.05)])
+def test_instants_without_a_still_pixel(band):
+    """composite="instants" in an image without a still pixel fills each instant from its own
+    picture (a push-pull weighed by each pixel's log depth from the kernel's sums), under an absolute
+    and a relative band, in both frameworks. The depths vary continuously here: the push-pull's
+    farthest depth is a maximum, whose gradient frameworks share among exact ties, and the kernel's
+    sums, added in another order, break ties that the tensor ops' sums keep."""
+    arrays = _scene(seed=6)
+    rng = np.random.default_rng(7)
+    arrays["depth"] = arrays["depth"] + rng.uniform(0.0, 0.02, arrays["depth"].shape)
+    for name in ("offset_prev", "offset_next"):
+        arrays[name] = rng.normal(0.0, 2.5, arrays[name].shape)
+    options = dict(samples=5, **band)
+    pure = _torch_run(arrays, "degree 2", options, "tensor")
+    _assert_close(_torch_run(arrays, "degree 2", options, "fused"), pure, FUSED_FLOAT64)
+    eager = lambda f: f  # noqa: E731  (whether an image has a still pixel is read from the offsets)
+    _assert_close(_jax_run(arrays, "degree 2", options, "fused", transform=eager), pure, FUSED_FLOAT64)
+
+
 @pytest.mark.parametrize("channels", [1, 4])
 def test_channel_counts_other_than_three(channels):
     """The kernels take colour in groups of three channels: one padded group, and a group and a half."""
@@ -204,8 +224,9 @@ def test_float32_both_frameworks_agree(path):
 @pytest.fixture
 def kernel_calls(monkeypatch):
     """Counts the fused kernels' forward and backward runs (JAX's callbacks look them up per call)."""
-    calls = {"forward": 0, "backward": 0}
-    for name, key in (("splat_forward", "forward"), ("splat_backward", "backward")):
+    calls = {"forward": 0, "backward": 0, "instant forward": 0, "instant backward": 0}
+    names = (("splat_forward", "forward"), ("splat_backward", "backward"), ("instant_forward", "instant forward"), ("instant_backward", "instant backward"))
+    for name, key in names:
         original = getattr(scatter_kernel, name)
 
         def counted(*args, _original=original, _key=key, **kwargs):
@@ -221,10 +242,11 @@ def test_default_takes_the_fused_path_in_both_frameworks(kernel_calls):
     arrays = _scene(np.float32)
     default = _torch_run(arrays, "degree 2", dict(samples=5), "auto")
     # composite="instants" (the default) splats on the kernel twice (what passes behind a pixel: the
-    # sums with the depths and without a test), its instants as tensor ops
-    assert kernel_calls == {"forward": 2, "backward": 2}
+    # sums with the depths and without a test), and its 5 instants in one chunk (a small image)
+    assert kernel_calls == {"forward": 2, "backward": 2, "instant forward": 1, "instant backward": 1}
     _jax_run(arrays, "degree 2", dict(samples=5), "auto")
     assert kernel_calls["forward"] > 2 and kernel_calls["backward"] == 4
+    assert kernel_calls["instant forward"] > 1 and kernel_calls["instant backward"] == 2
     counted = dict(kernel_calls)
     pure = _torch_run(arrays, "degree 2", dict(samples=5), "tensor")
     _jax_run(arrays, "degree 2", dict(samples=5), "tensor")

@@ -1,6 +1,6 @@
-"""`bezier_scatter`'s splats on the fused CPU kernel (`diffblur.kernels.scatter`) as PyTorch custom
-operators (`diffblur::splat_forward`, `diffblur::splat_backward`, the second registered as the
-first's gradient), which `torch.compile` keeps as opaque calls in its graph instead of tracing the
+"""`bezier_scatter`'s splats on the fused CPU kernels (`diffblur.kernels.scatter`) as PyTorch custom
+operators (`diffblur::splat_forward` and `diffblur::instant_forward`, with `diffblur::splat_backward`
+and `diffblur::instant_backward` registered as their gradients), which `torch.compile` keeps as opaque calls in its graph instead of tracing the
 splats.
 
 The kernel takes the path as the Bezier's power-basis terms (or the arc's centre and angle) and the
@@ -93,3 +93,55 @@ def fused_splat(color: Tensor, depth: Tensor, kind: str, terms: tuple, masses: T
     if not isinstance(extent, Tensor):  # a number: the tensor ops compare in the depth's dtype
         extent = torch.tensor(extent, dtype=depth.dtype)
     return splat_forward(color, depth, _path(kind, terms), masses, extent.to(depth.dtype), moving, kind == "arc", bool(paper))
+
+
+@torch.library.custom_op("diffblur::instant_forward", mutates_args=(), device_types="cpu")
+def instant_forward(color: Tensor, log_depth: Tensor, depth: Tensor, path: Tensor, times: Tensor, extent: Tensor, moving: Tensor, arc: bool) -> Tensor:
+    """`diffblur.kernels.scatter.instant_forward`: the sums (K, B, 2 C + 3, H, W) at each instant."""
+    arrays = (_array(t) for t in (color, log_depth, depth, path, times, extent, moving))
+    return torch.from_numpy(scatter_kernel.instant_forward(*arrays, arc=arc))
+
+
+@instant_forward.register_fake
+def _(color, log_depth, depth, path, times, extent, moving, arc):
+    batch, channels, height, width = color.shape
+    return color.new_empty((times.shape[0], batch, 2 * channels + 3, height, width))
+
+
+@torch.library.custom_op("diffblur::instant_backward", mutates_args=(), device_types="cpu")
+def instant_backward(
+    color: Tensor, log_depth: Tensor, depth: Tensor, path: Tensor, times: Tensor, extent: Tensor, moving: Tensor, grad_sums: Tensor, arc: bool
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """`diffblur.kernels.scatter.instant_backward`: the gradients w.r.t. color, log_depth, depth,
+    path and extent."""
+    arrays = (_array(t) for t in (color, log_depth, depth, path, times, extent, moving, grad_sums))
+    return tuple(torch.from_numpy(g) for g in scatter_kernel.instant_backward(*arrays, arc=arc))
+
+
+@instant_backward.register_fake
+def _(color, log_depth, depth, path, times, extent, moving, grad_sums, arc):
+    return tuple(x.new_empty(x.shape, dtype=color.dtype) for x in (color, log_depth, depth, path, extent))
+
+
+def _instant_setup(ctx, inputs, output):
+    color, log_depth, depth, path, times, extent, moving, arc = inputs
+    ctx.save_for_backward(color, log_depth, depth, path, times, extent, moving)
+    ctx.arc = arc
+
+
+def _instant_gradient(ctx, grad_sums):
+    grad_color, grad_log, grad_depth, grad_path, grad_extent = instant_backward(*ctx.saved_tensors, grad_sums, ctx.arc)
+    return grad_color, grad_log, grad_depth, grad_path, None, grad_extent, None, None
+
+
+instant_forward.register_autograd(_instant_gradient, setup_context=_instant_setup)
+_first_order_only(instant_backward, "bezier_scatter")
+
+
+def fused_instants(color: Tensor, log_depth: Tensor, depth: Tensor, kind: str, terms: tuple, times: Tensor, extent: float | Tensor, moving: Tensor) -> Tensor:
+    """composite="instants"'s sums (K, B, 2 C + 3, H, W) at `times` (K,) on the fused kernel
+    (`diffblur.ops.scatter._instant_sums`); color, log_depth and depth in one dtype."""
+    extent = floor_extent(TORCH, extent)
+    if not isinstance(extent, Tensor):
+        extent = torch.tensor(extent, dtype=depth.dtype)
+    return instant_forward(color, log_depth, depth, _path(kind, terms), times.to(depth.dtype), extent.to(depth.dtype), moving, kind == "arc")

@@ -55,12 +55,15 @@ class Backend:
     def run_kernel(self, op: str, *arrays: Any) -> Any:
         """`op` on its fused kernel: gather_blur (color, velocity, o), reconstruct (color, velocity,
         depth, jitter, o), bezier_scatter's splats (color, depth, kind, terms, masses, extent,
-        moving, paper)."""
+        moving, paper) and its instants (color, log depth, depth, kind, terms, times, extent,
+        moving)."""
         from diffblur.ops.sampling import position_dtype
 
         fused, fused_scatter = self.bindings()
         if op == "bezier_scatter":
             return fused_scatter.fused_splat(*arrays)
+        if op == "instants":
+            return fused_scatter.fused_instants(*arrays)
         *arrays, o = arrays
         if op == "gather_blur":
             return fused.fused_gather(*arrays, o.window, o.samples, o.classes, position_dtype(self, arrays[0].dtype))

@@ -734,7 +734,7 @@ def _scatter(
         # still pixel shows itself behind what passes in front of it, as in the other composites.
         passing = sums(xp.zeros_like(depth)) - sums(depth)
         behind = xp.where(moving[:, None], _over(be, *split(passing), be.astype(background, wide)), be.astype(color, wide))
-        return _instants(be, color, depth, terms, masses, extent, moving, x, y, behind, kind=kind, unknown=fill_from_instants, log_depth=log_depth)
+        return _instants(be, color, depth, terms, masses, extent, moving, x, y, behind, kind=kind, unknown=fill_from_instants, log_depth=log_depth, fused=fused)
 
     accumulated = sums(depth)
     splatted, alpha = split(accumulated)
@@ -759,18 +759,19 @@ def _scatter(
     return be.astype(xp.where(moving[:, None], layered, summed), color.dtype)
 
 
-def _instants(be: Any, color: Any, depth: Any, terms: tuple, masses: Any, extent: Any, moving: Any, x: Any, y: Any, behind: Any, *, kind: str, unknown: bool, log_depth: bool) -> Any:
+def _instants(
+    be: Any, color: Any, depth: Any, terms: tuple, masses: Any, extent: Any, moving: Any, x: Any, y: Any, behind: Any, *, kind: str, unknown: bool, log_depth: bool, fused: bool
+) -> Any:
     """composite="instants" (`COMPOSITES`): each point time depth-tested on its own, in chunks of
     instants (`Backend.sum_chunks`: O(pixels) memory with a gradient), the instants summed by their
     masses, over `behind` (B, C, H, W) where nothing covers a pixel; `unknown` (fill="still"): an image without
-    a still pixel fills each instant from itself instead."""
+    a still pixel fills each instant from itself instead. Each instant's splats on the fused kernel
+    if `fused` (`Backend.run_kernel`), by tensor ops else (`_instant_sums`); the composite by tensor
+    ops."""
     xp = be.xp
     batch, channels, height, width = color.shape
     wide = position_dtype(be, color.dtype)
     log = depth if log_depth else xp.log(depth)
-    # Rows of [color, 1, log depth] per source pixel: one scatter-add sums colour, coverage and the
-    # depth that the uncovered fill weighs.
-    rows = be.astype(be.permute(be.concat([color, xp.ones_like(depth), log], 1), (0, 2, 3, 1)).reshape(-1, channels + 2), wide)
     no_still = xp.all(moving.reshape(batch, -1), 1) if unknown else None
     times = be.asarray(point_times(masses.shape[0]), wide, color)
     # Instants per chunk, by the image padded by its ring (three times a line image's pixels): an
@@ -778,26 +779,37 @@ def _instants(be: Any, color: Any, depth: Any, terms: tuple, masses: Any, extent
     # (10 MB on 1x4097), so one or two at a time keep the peak O(pixels) and small
     # (tests/test_degenerate_memory.py).
     chunk = max(1, CHUNK_PIXEL_POINTS // (16 * batch * (height + 2) * (width + 2)))
+    start = be.zeros((batch, channels, height, width), wide, color)
+    if fused:
 
-    def instant(chunk_times: Any, chunk_masses: Any, *fixed: Any) -> Any:
-        return _instant_pictures(be, kind, chunk_times, chunk_masses, *fixed)
+        def fused_instant(chunk_times: Any, chunk_masses: Any, terms: tuple, moving: Any, color: Any, log: Any, depth: Any, extent: Any, behind: Any, no_still: Any) -> Any:
+            sums = be.run_kernel("instants", color, log, depth, kind, terms, chunk_times, extent, moving)
+            return _instant_pictures(be, sums, chunk_masses, behind, no_still)
+
+        fixed = (terms, moving, be.astype(color, wide), be.astype(log, wide), be.astype(depth, wide), extent, behind, no_still)
+        return be.astype(be.sum_chunks(fused_instant, times, masses, chunk, fixed, start), color.dtype)
+    # Rows of [color, 1, log depth] per source pixel: one scatter-add sums colour, coverage and the
+    # depth that the uncovered fill weighs.
+    rows = be.astype(be.permute(be.concat([color, xp.ones_like(depth), log], 1), (0, 2, 3, 1)).reshape(-1, channels + 2), wide)
+
+    def instant(chunk_times: Any, chunk_masses: Any, terms: tuple, x: Any, y: Any, moving: Any, rows: Any, depth: Any, destinations: Any, extent: Any, behind: Any, no_still: Any) -> Any:
+        sums = _instant_sums(be, kind, chunk_times, terms, x, y, moving, rows, depth, destinations, extent)
+        return _instant_pictures(be, sums, chunk_masses, behind, no_still)
 
     # Each destination's depth and whether it is still, on the padded images, flat: (B (H + 2) (W + 2), 2).
     destinations = be.pad(be.concat([be.astype(depth, wide), be.astype(xp.logical_not(moving)[:, None], wide)], 1), ((0, 0), (0, 0), (1, 1), (1, 1)), mode="edge")
     destinations = be.permute(destinations, (0, 2, 3, 1)).reshape(-1, 2)
-    start = be.zeros((batch, channels, height, width), wide, color)
     fixed = (terms, x[None], y[None], moving, rows, depth, destinations, extent, behind, no_still)
     return be.astype(be.sum_chunks(instant, times, masses, chunk, fixed, start), color.dtype)
 
 
-def _instant_pictures(
-    be: Any, kind: str, times: Any, masses: Any, terms: tuple, x: Any, y: Any, moving: Any, rows: Any, depth: Any, destinations: Any, extent: Any, behind: Any, no_still: Any
-) -> Any:
-    """The sum over `times` (K,) of masses x what the camera sees at each instant (B, C, H, W):
-    every moving pixel's point splatted bilinearly onto the image padded by a ring of one pixel; on
-    a still pixel only where the depth test against it passes (seed 003's: it is the layer behind);
-    per destination the nearest depth among splats weighing more than NEAREST_SPLAT_WEIGHT; the
-    splats within the band behind it, beside the others, over `behind` (a still pixel: itself)."""
+def _instant_sums(be: Any, kind: str, times: Any, terms: tuple, x: Any, y: Any, moving: Any, rows: Any, depth: Any, destinations: Any, extent: Any) -> Any:
+    """What the camera sees at each of `times` (K,), as sums (K, B, 2 C + 3, H, W): every moving
+    pixel's point splatted bilinearly onto the image padded by a ring of one pixel (then cropped);
+    on a still pixel only where the depth test against it passes (seed 003's: it is the layer
+    behind); per destination the nearest depth among splats weighing more than
+    NEAREST_SPLAT_WEIGHT; omega [color, 1, log depth] of the splats within the band behind it (the
+    nearest layer), then weight [color, 1] of every splat."""
     xp = be.xp
     px, py = curve_position(kind, terms, x, y, times.reshape(-1, 1, 1, 1), xp)
     count, batch, height, width = px.shape
@@ -817,7 +829,15 @@ def _instant_pictures(
     # splat): where the nearest layer covers a pixel in part, the others show in the rest of it.
     values = be.concat([omega.reshape(4 * count, -1, 1) * rows[None], bilinear.reshape(4 * count, -1, 1) * rows[None, :, : channels + 1]], 2)
     sums = be.scatter_add(size, index, values.reshape(-1, 2 * channels + 3)).reshape(count, batch, height + 2, width + 2, 2 * channels + 3)[:, :, 1:-1, 1:-1]
-    sums = be.permute(sums, (0, 1, 4, 2, 3))
+    return be.permute(sums, (0, 1, 4, 2, 3))
+
+
+def _instant_pictures(be: Any, sums: Any, masses: Any, behind: Any, no_still: Any) -> Any:
+    """The sum over the instants of masses (K,) x what the camera sees at each, from their sums
+    (K, B, 2 C + 3, H, W) (`_instant_sums`): the nearest layer's splats, beside the others, over
+    `behind` (a still pixel: itself)."""
+    xp = be.xp
+    channels = (sums.shape[2] - 3) // 2
     splatted, alpha, log_sum = sums[:, :, :channels], sums[:, :, channels : channels + 1], sums[:, :, channels + 1 : channels + 2]
     hidden, hidden_alpha = sums[:, :, channels + 2 : 2 * channels + 2] - splatted, sums[:, :, 2 * channels + 2 :] - alpha
     behind = behind[None]
