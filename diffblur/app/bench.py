@@ -691,7 +691,7 @@ def _markdown(results: dict) -> str:
         size = results["targets"][0]["size"]
         paths = (
             "Paths: `reconstruct` by default (`jitter=\"noise\"`) reads each pixel's taps on their own; with `jitter=\"none\"` (the \"no jitter\" rows)"
-            " it reads each tile's taps as shifted rows (docs/fused.md). `bezier_scatter` runs its default `composite=\"instants\"`, whose instants are tensor ops (docs/defaults.md)."
+            " it reads each tile's taps as shifted rows (docs/fused.md). `bezier_scatter` runs its default `composite=\"instants\"`: its splats on the fused kernel, each instant's composite by tensor ops (docs/defaults.md)."
         )
         out += [f"## Targets ({size}, uniform scene, float32, median of {results['target_repeats']} runs)", "", paths, ""] + _target_lines(results["targets"]) + [""]
         out += _table(results["targets"]) + [""]

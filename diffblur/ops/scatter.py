@@ -462,12 +462,13 @@ DOC = """Scatter every moving pixel's colour along its curved path over the expo
             sum of the splats the depth test passes, over the fill, where splats that overlap in the
             exposure are averaged whatever their depth. Still pixels keep the sum in "layers" and
             "sum" (their own level layer, in front of what passes behind them); "paper" has no
-            composite. "instants" splats twice on the kernel (what passes behind) and its instants
-            as tensor ops; "layers" three times. Measured in docs/defaults.md.
+            composite. "instants" splats twice on the kernel (what passes behind), then each instant's
+            nearest layer and splats once; "layers" three times. Measured in docs/defaults.md.
         impl: "auto" (default): the splats and their backward on the fused CPU kernel
             (`diffblur.kernels.scatter`, numba: one parallel loop each, O(pixels) memory) where it
             applies, the tensor ops elsewhere; the normalisation, the fill and composite="instants"'s
-            instants stay tensor ops.
+            composite of each instant (and its push-pull where an image lacks a still pixel) stay
+            tensor ops.
             "fused": the kernel, or a ValueError naming what it does not cover. "tensor": always
             the tensor ops. The kernel covers CPU float32/float64 images, every path and shutter;
             in PyTorch eagerly and under torch.compile (custom operators), in JAX under jax.jit and

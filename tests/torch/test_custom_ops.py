@@ -50,7 +50,7 @@ OPS = {
     ),
     "bezier_scatter": (
         # fill="color": the push-pull fill (tensor ops around the kernel) would double the graphs.
-        # composite="layers": all on the kernel ("instants", the default, splats its instants as tensor ops)
+        # composite="layers": one kernel pair ("instants", the default, adds the instant kernels and a tensor composite)
         lambda c, v, z, taps: torch_impl.bezier_scatter(c, z, -v, v, samples=taps, fill="color", composite="layers"),
         torch.ops.diffblur.splat_forward,
         torch.ops.diffblur.splat_backward,
