@@ -445,15 +445,16 @@ def test_extremes_are_finite(backend, scale, extent):
             assert np.all(np.isfinite(g))
 
 
-def test_checkpointed_chunks_match_plain_autodiff(backend, monkeypatch):
+@pytest.mark.parametrize("impl", ["tensor", "fused"])
+def test_checkpointed_chunks_match_plain_autodiff(backend, impl, monkeypatch):
     """With a chunk budget of one point (five chunks), each chunk is recomputed in the backward
-    (activation checkpointing); outputs and gradients equal those of a single chunk."""
+    (activation checkpointing); outputs and gradients equal those of a single chunk. The chunks are
+    composite="instants"' (the default): on the tensor ops and on the fused kernel alike."""
     from diffblur.ops import scatter
 
     rng = np.random.default_rng(37)
     arrays = [rng.random((1, 2, 7, 5)), rng.uniform(1, 2, (1, 1, 7, 5)), rng.normal(size=(1, 2, 7, 5)), rng.normal(size=(1, 2, 7, 5))]
-    # The chunks are the tensor ops' (the fused kernel needs none).
-    fn = lambda *a: backend.ops.bezier_scatter(*a, samples=5, soft_z_extent=0.5, impl="tensor") ** 2  # noqa: E731
+    fn = lambda *a: backend.ops.bezier_scatter(*a, samples=5, soft_z_extent=0.5, impl=impl) ** 2  # noqa: E731
     results = {}
     for budget in (35, 1 << 18):  # 35 pixels: one point per chunk
         monkeypatch.setattr(scatter, "CHUNK_PIXEL_POINTS", budget)
