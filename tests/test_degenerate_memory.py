@@ -22,8 +22,8 @@ OPS = ("gather_blur", "reconstruct", "bezier_scatter", "warp_blend", "accumulate
 N = 4097
 #: The bound on the peak, in multiples of the inputs' bytes: about twice the largest measured in
 #: float32 (docs/robustness.md, "Memory on degenerate shapes": bezier_scatter's default
-#: composite="instants", which splats its instants as tensor ops one at a time here, 8.8 MB idle and
-#: up to 14.4 MB under the suite's load, 150 times the inputs). An op whose memory grew with one side
+#: composite="instants", which takes its instants in chunks sized by the image here, up to 14.5 MB,
+#: about 150 times the inputs). An op whose memory grew with one side
 #: of the image times the other (4097 x 4097), or with the pixels times the taps, would pass it by far.
 PEAK_FACTOR = 256
 
