@@ -108,6 +108,27 @@ def test_rows_wider_than_one_block(case):
     _assert_close(_torch_run(arrays, CASES[case], "fused"), _torch_run(arrays, CASES[case], "tensor"), FUSED_FLOAT64)
 
 
+@pytest.mark.parametrize("jitter", ["none", "per pair of tiles"])
+def test_shifted_rows_across_tiles_of_one_motion(jitter):
+    """A pan: neighbouring tiles share NeighborMax, so the shifted rows read runs of several tiles at
+    once (cut where the jitter or the motion changes, at the block's end and at the border)."""
+    width, tile = _BLOCK + 23, 4
+    color, velocity, depth, cotangent = _scene(width=width)
+    velocity[...] = np.array([3.3, 0.6]).reshape(1, 2, 1, 1)
+    # Two more motions mid-row, each differing from the pan in one component of NeighborMax.
+    velocity[:, :, 4:, 40:60] = np.array([3.3, -1.7]).reshape(1, 2, 1, 1)
+    velocity[:, :, :7, 120:150] = np.array([-4.5, 0.6]).reshape(1, 2, 1, 1)
+    options = dict(max_radius=float(tile), samples=7, jitter="none")
+    if jitter != "none":  # constant over pairs of tiles: runs of two tiles
+        options["jitter"] = _per_tile_jitter(2 * tile, width=width)
+        assert reconstruct_kernel.shifted_rows(options["jitter"], tile, own_odd=False)
+    arrays = [color, velocity, depth, cotangent]
+    torch_options = dict(options, jitter=torch.tensor(options["jitter"])) if jitter != "none" else options
+    _assert_close(_torch_run(arrays, torch_options, "fused"), _torch_run(arrays, torch_options, "tensor"), FUSED_FLOAT64)
+    jax_options = dict(options, jitter=jnp.asarray(options["jitter"])) if jitter != "none" else options
+    _assert_close(_jax_run(arrays, jax_options, "fused", jax.jit), _jax_run(arrays, jax_options, "tensor"), FUSED_FLOAT64)
+
+
 def test_float32_both_frameworks_agree():
     arrays = _scene(np.float32, seed=1)
     options = CASES["default"]

@@ -22,7 +22,9 @@ Two ways to read the taps, chosen per call by `shifted_rows`:
   and every tap along NeighborMax, which is constant over a tile): tap k of a tile is the tile's
   row read at one offset v_N t_k, so the reads are contiguous runs of the planar images with one
   pair of bilinear fractions, and the backward's bilinear scatter is four vector adds along the
-  row that no two lanes share. Taps clamped at the image border are read one pixel at a time.
+  row that no two lanes share. Neighbouring tiles with the same NeighborMax and jitter (a pan, any
+  region of one dominant motion) are read as one run. Taps clamped at the image border are read one
+  pixel at a time.
 - Per pixel, otherwise (the "noise" jitter, directions="neighbor_and_own"): each pixel's tap read
   from a buffer of (left, right) pairs, and the backward scatters each tap's gradient to the 4
   pixels it read, which lanes may share, one pixel at a time.
@@ -215,6 +217,22 @@ def _shifted_rows(py, shift_x, start, segment, segment_end, height, width, last_
 
 
 @_inline
+def _segment_end(segment, start, end, tile, chunk, jitter_s, nx_s, ny_s):
+    """Where the shifted-row segment that starts at column `segment` of the block [start, end) ends:
+    the run of whole tiles whose taps share its offsets (the same NeighborMax and jitter, as over a
+    uniform pan). One long run vectorizes better than one loop per tile of `tile` pixels (a 20-pixel
+    loop spends much of its time outside the full SIMD vectors)."""
+    q = segment - start
+    segment_end = min((segment // tile + 1) * tile, end)
+    while segment_end < end:
+        p = segment_end - start
+        if (nx_s[chunk, p] != nx_s[chunk, q]) | (ny_s[chunk, p] != ny_s[chunk, q]) | (jitter_s[chunk, p] != jitter_s[chunk, q]):
+            break
+        segment_end = min(segment_end + tile, end)
+    return segment_end
+
+
+@_inline
 def _tap_gradients(z_x, speed_x, inverse_x, distance, g_alpha, v_yx, v_yy, z_y, min_radius, extent, inverse_extent):
     """A tap's weight alpha and the derivatives of g_alpha * alpha: w.r.t. V[Y] (x, y), Z[Y], the
     classifiers' speed of X, Z[X] and the tap's distance (the pure op's one-sided rules)."""
@@ -322,7 +340,7 @@ def _reconstruct_forward(
                     if rows != 0:  # shifted rows: one offset per tile segment
                         segment = start
                         while segment < end:
-                            segment_end = min((segment // tile + 1) * tile, end)
+                            segment_end = _segment_end(segment, start, end, tile, chunk, jitter_s, nx_s, ny_s)
                             q = segment - start
                             t = -1.0 + (k + jitter_s[chunk, q] + 1.0) * step
                             shift_x = nx_s[chunk, q] * t
@@ -405,21 +423,19 @@ def _add_gradient(grads, grads_rows, rows, chunk, b, y, x, k, value, batch, stor
 @_inline
 def _add_shifted(grads_rows, at, below, fx, fy, value_s, chunk, first, last):
     """Add value_s[chunk, u] for u in [first, last) to the 4 pixels pixel u's tap read (flat indices
-    at + u, at + u + 1 and the same `below`), each with its bilinear weight: one loop per corner, so
-    that no two lanes of a vector add to one pixel."""
+    at + u, at + u + 1 and the same `below`), each with its bilinear weight: one loop per row read,
+    pixel at + u taking the left share of value u and the right share of value u - 1, so that no two
+    lanes of a vector add to one pixel and each pixel is loaded and stored once per row."""
+    if last <= first:
+        return
     one = np.uint64(1)
-    weight = (1.0 - fx) * (1.0 - fy)
-    for u in range(np.uint64(first), np.uint64(last)):  # vectorized: contiguous adds
-        grads_rows[at + u] += weight * value_s[chunk, u]
-    weight = fx * (1.0 - fy)
-    for u in range(np.uint64(first), np.uint64(last)):
-        grads_rows[at + one + u] += weight * value_s[chunk, u]
-    weight = (1.0 - fx) * fy
-    for u in range(np.uint64(first), np.uint64(last)):
-        grads_rows[at + below + u] += weight * value_s[chunk, u]
-    weight = fx * fy
-    for u in range(np.uint64(first), np.uint64(last)):
-        grads_rows[at + below + one + u] += weight * value_s[chunk, u]
+    for row, row_weight in ((at, 1.0 - fy), (at + below, fy)):
+        left = row_weight * (1.0 - fx)
+        right = row_weight * fx
+        grads_rows[row + np.uint64(first)] += left * value_s[chunk, np.uint64(first)]
+        for u in range(np.uint64(first) + one, np.uint64(last)):  # vectorized: contiguous adds
+            grads_rows[row + u] += left * value_s[chunk, u] + right * value_s[chunk, u - one]
+        grads_rows[row + np.uint64(last)] += right * value_s[chunk, np.uint64(last) - one]
 
 
 @_inline
@@ -558,7 +574,7 @@ def _reconstruct_backward(
                     if rows != 0:  # shifted rows: one offset per tile segment
                         segment = start
                         while segment < end:
-                            segment_end = min((segment // tile + 1) * tile, end)
+                            segment_end = _segment_end(segment, start, end, tile, chunk, jitter_s, nx_s, ny_s)
                             q = segment - start
                             t = -1.0 + (k + jitter_s[chunk, q] + 1.0) * step
                             shift_x = nx_s[chunk, q] * t
