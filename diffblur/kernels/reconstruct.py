@@ -21,8 +21,8 @@ Two ways to read the taps, chosen per call by `shifted_rows`:
 - Shifted rows, when every tile's taps share their offsets (no jitter, or one constant per tile,
   and every tap along NeighborMax, which is constant over a tile): tap k of a tile is the tile's
   row read at one offset v_N t_k, so the reads are contiguous runs of the planar images with one
-  pair of bilinear fractions, and the backward's bilinear scatter is four vector adds along the
-  row that no two lanes share. Neighbouring tiles with the same NeighborMax and jitter (a pan, any
+  pair of bilinear fractions, and the backward's bilinear scatter is one vector pass per row read
+  in which no two lanes add to one pixel. Neighbouring tiles with the same NeighborMax and jitter (a pan, any
   region of one dominant motion) are read as one run. Taps clamped at the image border are read one
   pixel at a time.
 - Per pixel, otherwise (the "noise" jitter, directions="neighbor_and_own"): each pixel's tap read
@@ -514,8 +514,8 @@ def _reconstruct_backward(
     reads the colours, one runs the classifiers' derivatives; then a scalar loop scatters the
     gradients of the 4 pixels each tap read (lanes may collide, so it cannot be a vector scatter)
     into grads, (chunks, B, H, W, C + 3) zeros, one buffer per chunk of rows (C, V, Z gradients
-    interleaved). rows = 1, shifted rows (*_flat): the same loops per tile segment on contiguous
-    reads, and the scatter as four contiguous vector adds (`_add_shifted`) into grads_rows, the flat
+    interleaved). rows = 1, shifted rows (*_flat): the same loops per run of tiles on contiguous
+    reads, and the scatter as one contiguous vector pass per row read (`_add_shifted`) into grads_rows, the flat
     (chunks, B, C + 3, H, W) zeros."""
     batch, channels, height, width = color.shape
     stored = channels + 3
