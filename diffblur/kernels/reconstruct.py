@@ -267,32 +267,39 @@ def _tap_gradients(z_x, speed_x, inverse_x, distance, g_alpha, v_yx, v_yy, z_y, 
 
 
 @_inline
-def _pixel_state(velocity, depth, neighbors, jitter, b, jb, y, x, tile, min_radius, chunk, p, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s):
-    """Pixel X's scratch entries p of chunk `chunk`: its jitter, NeighborMax v_N and |v_N|, V[X],
-    |V[X]|, the classifiers' floored inverse speed and Z[X]. Returns the classifiers' speed."""
-    jitter_s[chunk, p] = jitter[jb, 0, y, x]
-    nx = np.float64(neighbors[b, 0, y // tile, x // tile])
-    ny = np.float64(neighbors[b, 1, y // tile, x // tile])
-    nx_s[chunk, p] = nx
-    ny_s[chunk, p] = ny
-    speed_n_s[chunk, p] = _length(nx, ny)
-    vx = np.float64(velocity[b, 0, y, x])
-    vy = np.float64(velocity[b, 1, y, x])
-    vx_s[chunk, p] = vx
-    vy_s[chunk, p] = vy
-    length_x = _length(vx, vy)
-    length_x_s[chunk, p] = length_x
-    speed_x = length_x if length_x >= min_radius else min_radius
-    inverse_x_s[chunk, p] = _floored_inverse(speed_x)
-    z_x_s[chunk, p] = depth[b, 0, y, x]
-    return speed_x
-
+def _block_state(velocity, depth, neighbors, jitter, b, jb, y, start, end, tile, min_radius, chunk, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s):
+    """The scratch entries of the block [start, end) of row y, image b, chunk `chunk` (entry p for
+    pixel start + p): the jitter, NeighborMax v_N and |v_N|, V[X], |V[X]|, the classifiers' speed
+    and its floored inverse, Z[X]. NeighborMax is read once per tile (the block starts on a tile's
+    edge), so that the per-pixel loop has no integer division and runs as vectors."""
+    tile_y = y // tile
+    for tile_x in range(start // tile, (end - 1) // tile + 1):
+        nx = np.float64(neighbors[b, 0, tile_y, tile_x])
+        ny = np.float64(neighbors[b, 1, tile_y, tile_x])
+        speed_n = _length(nx, ny)
+        for p in range(max(tile_x * tile, start) - start, min((tile_x + 1) * tile, end) - start):
+            nx_s[chunk, p] = nx
+            ny_s[chunk, p] = ny
+            speed_n_s[chunk, p] = speed_n
+    for p in range(end - start):  # vectorized
+        x = start + p
+        jitter_s[chunk, p] = jitter[jb, 0, y, x]
+        vx = np.float64(velocity[b, 0, y, x])
+        vy = np.float64(velocity[b, 1, y, x])
+        vx_s[chunk, p] = vx
+        vy_s[chunk, p] = vy
+        length_x = _length(vx, vy)
+        length_x_s[chunk, p] = length_x
+        speed_x = length_x if length_x >= min_radius else min_radius
+        speed_x_s[chunk, p] = speed_x
+        inverse_x_s[chunk, p] = _floored_inverse(speed_x)
+        z_x_s[chunk, p] = depth[b, 0, y, x]
 
 
 @_jit
 def _reconstruct_forward(
     pairs, color_flat, velocity_flat, depth_flat, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, rows, order, chunks, out, weight,
-    jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s, weight_s, total_s, index_s, below_s, fx_s, fy_s, alpha_s,
+    jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, weight_s, total_s, index_s, below_s, fx_s, fy_s, alpha_s,
 ):
     """The *_s scratch arrays hold one block per chunk: (chunks, >= _BLOCK), total_s (chunks, C, >= _BLOCK).
     own_odd and rows are ints (0 or 1): see the note above on aliases. rows = 1: every tap along
@@ -325,13 +332,12 @@ def _reconstruct_forward(
                         weight[b, y, x] = 0.0
                     start = end
                     continue
-                for p in range(size):  # each pixel's state: NeighborMax, V[X], |V[X]|, Z[X], j
-                    x = start + p
-                    speed_x = _pixel_state(velocity, depth, neighbors, jitter, b, jb, y, x, tile, min_radius, chunk, p, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s)
-                    w = 1.0 / speed_x
-                    weight_s[chunk, p] = w
-                    for c in range(channels):
-                        total_s[chunk, c, p] = w * color[b, c, y, x]
+                _block_state(velocity, depth, neighbors, jitter, b, jb, y, start, end, tile, min_radius, chunk, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s)
+                for p in range(size):
+                    weight_s[chunk, p] = 1.0 / speed_x_s[chunk, p]
+                for c in range(channels):
+                    for p in range(size):  # vectorized
+                        total_s[chunk, c, p] = weight_s[chunk, p] * color[b, c, y, start + p]
                 middle = (count - 1) // 2
                 step = 2.0 / (count + 1.0)
                 for k in range(count):
@@ -400,12 +406,11 @@ def _reconstruct_forward(
                         for p in range(size):  # vectorized
                             read = _pair_read(pairs, index_s[chunk, p] + c, below_s[chunk, p], fx_s[chunk, p], fy_s[chunk, p])
                             total_s[chunk, c, p] += alpha_s[chunk, p] * read
+                for c in range(channels):
+                    for p in range(size):  # vectorized
+                        out[b, c, y, start + p] = total_s[chunk, c, p] / weight_s[chunk, p]
                 for p in range(size):
-                    x = start + p
-                    w = weight_s[chunk, p]
-                    for c in range(channels):
-                        out[b, c, y, x] = total_s[chunk, c, p] / w
-                    weight[b, y, x] = w
+                    weight[b, y, start + p] = weight_s[chunk, p]
                 start = end
 
 
@@ -544,21 +549,23 @@ def _reconstruct_backward(
                             _add_gradient(grads, grads_rows, rows, chunk, b, y, x, c, grad_out[b, c, y, x], batch, stored, plane, width)
                     start = end
                     continue
+                _block_state(velocity, depth, neighbors, jitter, b, jb, y, start, end, tile, min_radius, chunk, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s)
+                # out = total / w: d total = g / w, d w = -sum(g out) / w; per tap alpha and
+                # alpha C[Y] both enter, so d alpha = sum(g (C[Y] - out)) / w. g_speed_x_s first
+                # sums g (C[X] - out), the centre's share.
                 for p in range(size):
-                    x = start + p
-                    speed_x = _pixel_state(velocity, depth, neighbors, jitter, b, jb, y, x, tile, min_radius, chunk, p, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, inverse_x_s, z_x_s)
-                    speed_x_s[chunk, p] = speed_x
-                    # out = total / w: d total = g / w, d w = -sum(g out) / w; per tap alpha and
-                    # alpha C[Y] both enter, so d alpha = sum(g (C[Y] - out)) / w.
-                    w = np.float64(weight[b, y, x])
-                    g_center = 0.0
-                    for c in range(channels):
-                        g_total = grad_out[b, c, y, x] / w
+                    g_speed_x_s[chunk, p] = 0.0
+                for c in range(channels):
+                    for p in range(size):  # vectorized
+                        x = start + p
+                        g_total = grad_out[b, c, y, x] / np.float64(weight[b, y, x])
                         g_total_s[chunk, c, p] = g_total
                         out_s[chunk, c, p] = out[b, c, y, x]
-                        g_center += g_total * (color[b, c, y, x] - out[b, c, y, x])
-                        _add_gradient(grads, grads_rows, rows, chunk, b, y, x, c, g_total / speed_x, batch, stored, plane, width)
-                    g_speed_x_s[chunk, p] = -g_center / (speed_x * speed_x)
+                        g_speed_x_s[chunk, p] += g_total * (color[b, c, y, x] - out[b, c, y, x])
+                        _add_gradient(grads, grads_rows, rows, chunk, b, y, x, c, g_total / speed_x_s[chunk, p], batch, stored, plane, width)
+                for p in range(size):  # vectorized
+                    speed_x = speed_x_s[chunk, p]
+                    g_speed_x_s[chunk, p] = -g_speed_x_s[chunk, p] / (speed_x * speed_x)
                     g_z_x_s[chunk, p] = 0.0
                     g_vx_s[chunk, p] = 0.0
                     g_vy_s[chunk, p] = 0.0
@@ -711,7 +718,7 @@ def _reconstruct_backward(
                             _scatter_chunk(grads, chunk, b, channels + 1, row0, row1, column, column1, fx, fy, g_v_yy_s[chunk, p])
                         if scatter_depth != 0:
                             _scatter_chunk(grads, chunk, b, channels + 2, row0, row1, column, column1, fx, fy, g_z_y_s[chunk, p])
-                for p in range(size):  # each pixel's own V[X], Z[X] and NeighborMax
+                for p in range(size):  # vectorized: each pixel's own V[X], Z[X] and NeighborMax
                     x = start + p
                     length_x = length_x_s[chunk, p]
                     g_length_x = g_length_x_s[chunk, p]
@@ -722,17 +729,22 @@ def _reconstruct_backward(
                     if length_x > 0.0:
                         g_vx += g_length_x * vx_s[chunk, p] / length_x
                         g_vy += g_length_x * vy_s[chunk, p] / length_x
-                    g_nx = g_nx_s[chunk, p]
-                    g_ny = g_ny_s[chunk, p]
                     speed_n = speed_n_s[chunk, p]
                     if speed_n > 0.0:
-                        g_nx += g_speed_n_s[chunk, p] * nx_s[chunk, p] / speed_n
-                        g_ny += g_speed_n_s[chunk, p] * ny_s[chunk, p] / speed_n
+                        g_nx_s[chunk, p] += g_speed_n_s[chunk, p] * nx_s[chunk, p] / speed_n
+                        g_ny_s[chunk, p] += g_speed_n_s[chunk, p] * ny_s[chunk, p] / speed_n
                     _add_gradient(grads, grads_rows, rows, chunk, b, y, x, channels, g_vx, batch, stored, plane, width)
                     _add_gradient(grads, grads_rows, rows, chunk, b, y, x, channels + 1, g_vy, batch, stored, plane, width)
                     _add_gradient(grads, grads_rows, rows, chunk, b, y, x, channels + 2, g_z_x_s[chunk, p], batch, stored, plane, width)
-                    grad_neighbors[chunk, b, 0, y // tile, x // tile] += g_nx
-                    grad_neighbors[chunk, b, 1, y // tile, x // tile] += g_ny
+                tile_y = y // tile
+                for tile_x in range(start // tile, (end - 1) // tile + 1):  # NeighborMax's: one sum per tile
+                    g_nx = 0.0
+                    g_ny = 0.0
+                    for p in range(max(tile_x * tile, start) - start, min((tile_x + 1) * tile, end) - start):
+                        g_nx += g_nx_s[chunk, p]
+                        g_ny += g_ny_s[chunk, p]
+                    grad_neighbors[chunk, b, 0, tile_y, tile_x] += g_nx
+                    grad_neighbors[chunk, b, 1, tile_y, tile_x] += g_ny
                 start = end
 
 
@@ -765,6 +777,7 @@ class ReconstructForwardScratch(NamedTuple):
     vx: Floats
     vy: Floats
     length_x: Floats
+    speed_x: Floats
     inverse_x: Floats
     z_x: Floats
     weight: Floats
