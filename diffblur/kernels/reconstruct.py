@@ -53,6 +53,7 @@ from diffblur.kernels.shared import (
     _pair_read,
     _pair_read_slopes,
     _pairs,
+    _real,
     _scatter_chunk,
     _soft_depth_compare,
     _tap_corner,
@@ -108,38 +109,47 @@ def tile_counts(speed: Any, o: Any, xp: Any) -> Any:
 @_inline
 def _floored_inverse(speed):
     """1 / max(speed, EPSILON): the classifiers divide by the floored speed; one division per speed."""
-    return 1.0 / (speed if speed >= EPSILON else EPSILON)
+    return _real(1.0, speed) / (speed if speed >= EPSILON else _real(EPSILON, speed))
 
 
 @_inline
 def _cone(distance, inverse):
-    u = 1.0 - distance * inverse
-    return 0.0 if u < 0.0 else (1.0 if u > 1.0 else u)
+    ratio = distance * inverse
+    one = _real(1.0, ratio)
+    u = one - ratio
+    return _real(0.0, ratio) if u < 0.0 else (one if u > 1.0 else u)
 
 
 @_inline
 def _cone_grad(distance, speed, inverse, grad):
     """d cone / d distance and d cone / d speed, times grad (the pure op's one-sided rules). One
     return of selects: a tuple merged from two returns is an alias to numba's parallel loops."""
-    u = 1.0 - distance * inverse
-    grad = grad if (u >= 0.0) & (u <= 1.0) else 0.0
-    d_speed = grad * distance * inverse * inverse if speed >= EPSILON else 0.0
+    ratio = distance * inverse
+    u = _real(1.0, ratio) - ratio
+    zero = _real(0.0, grad * ratio)
+    grad = grad if (u >= 0.0) & (u <= 1.0) else zero
+    d_speed = grad * ratio * inverse if speed >= EPSILON else zero
     return -grad * inverse, d_speed
 
 
 @_inline
 def _cylinder(distance, inverse):
-    q = (distance * inverse - CYLINDER_INNER) * _INVERSE_CYLINDER_SPAN
-    q = 0.0 if q < 0.0 else (1.0 if q > 1.0 else q)
-    return 1.0 - q * q * (3.0 - 2.0 * q)
+    ratio = distance * inverse
+    q = (ratio - _real(CYLINDER_INNER, ratio)) * _real(_INVERSE_CYLINDER_SPAN, ratio)
+    one = _real(1.0, ratio)
+    q = _real(0.0, ratio) if q < 0.0 else (one if q > 1.0 else q)
+    return one - q * q * (_real(3.0, ratio) - _real(2.0, ratio) * q)
 
 
 @_inline
 def _cylinder_grad(distance, speed, inverse, grad):
     """As `_cone_grad`, for the cylinder."""
-    q = (distance * inverse - CYLINDER_INNER) * _INVERSE_CYLINDER_SPAN
-    d_q = grad * (-6.0 * q * (1.0 - q)) * _INVERSE_CYLINDER_SPAN if (q >= 0.0) & (q <= 1.0) else 0.0
-    d_speed = -d_q * distance * inverse * inverse if speed >= EPSILON else 0.0
+    ratio = distance * inverse
+    span = _real(_INVERSE_CYLINDER_SPAN, ratio)
+    q = (ratio - _real(CYLINDER_INNER, ratio)) * span
+    zero = _real(0.0, grad * ratio)
+    d_q = grad * (_real(-6.0, ratio) * q * (_real(1.0, ratio) - q)) * span if (q >= 0.0) & (q <= 1.0) else zero
+    d_speed = -d_q * ratio * inverse if speed >= EPSILON else zero
     return d_q * inverse, d_speed
 
 
@@ -152,7 +162,7 @@ def _tap_alpha(z_x, z_y, v_yx, v_yy, distance, inverse_x, min_radius, extent, in
     return (
         _soft_depth_compare(z_x, z_y, extent, inverse_extent) * _cone(distance, inverse_y)
         + _soft_depth_compare(z_y, z_x, extent, inverse_extent) * _cone(distance, inverse_x)
-        + _cylinder(distance, inverse_y) * _cylinder(distance, inverse_x) * 2.0
+        + _cylinder(distance, inverse_y) * _cylinder(distance, inverse_x) * _real(2.0, distance * inverse_x)
     )
 
 
@@ -163,10 +173,10 @@ def _row_read(flat, top, below, fx, fy):
     indices: contiguous vector loads, no gathers. The indices are unsigned: a signed index would
     carry numba's negative-index wraparound, a select that turns the loads into gathers."""
     one = np.uint64(1)
-    top_left = np.float64(flat[top])
-    top_right = np.float64(flat[top + one])
-    bottom_left = np.float64(flat[top + below])
-    bottom_right = np.float64(flat[top + below + one])
+    top_left = flat[top]
+    top_right = flat[top + one]
+    bottom_left = flat[top + below]
+    bottom_right = flat[top + below + one]
     top_row = top_left + fx * (top_right - top_left)
     bottom_row = bottom_left + fx * (bottom_right - bottom_left)
     return top_row + fy * (bottom_row - top_row)
@@ -176,13 +186,13 @@ def _row_read(flat, top, below, fx, fy):
 def _row_read_slopes(flat, top, below, fx, fy):
     """d read / d fx, d read / d fy and the read of `_row_read`."""
     one = np.uint64(1)
-    top_left = np.float64(flat[top])
-    top_right = np.float64(flat[top + one])
-    bottom_left = np.float64(flat[top + below])
-    bottom_right = np.float64(flat[top + below + one])
+    top_left = flat[top]
+    top_right = flat[top + one]
+    bottom_left = flat[top + below]
+    bottom_right = flat[top + below + one]
     top_row = top_left + fx * (top_right - top_left)
     bottom_row = bottom_left + fx * (bottom_right - bottom_left)
-    return (1.0 - fy) * (top_right - top_left) + fy * (bottom_right - bottom_left), bottom_row - top_row, top_row + fy * (bottom_row - top_row)
+    return (_real(1.0, fy) - fy) * (top_right - top_left) + fy * (bottom_right - bottom_left), bottom_row - top_row, top_row + fy * (bottom_row - top_row)
 
 
 @_inline
@@ -190,13 +200,13 @@ def _clamped_read_slopes(flat, plane, width, row0, row1, column, fx, fy):
     """`_row_read_slopes` for one pixel whose tap was clamped at the border: plane is the index of
     the image plane's first pixel, the right column clamped to the image as `_pairs` does."""
     column1 = min(column + 1, width - 1)
-    top_left = np.float64(flat[plane + row0 * width + column])
-    top_right = np.float64(flat[plane + row0 * width + column1])
-    bottom_left = np.float64(flat[plane + row1 * width + column])
-    bottom_right = np.float64(flat[plane + row1 * width + column1])
+    top_left = flat[plane + row0 * width + column]
+    top_right = flat[plane + row0 * width + column1]
+    bottom_left = flat[plane + row1 * width + column]
+    bottom_right = flat[plane + row1 * width + column1]
     top_row = top_left + fx * (top_right - top_left)
     bottom_row = bottom_left + fx * (bottom_right - bottom_left)
-    return (1.0 - fy) * (top_right - top_left) + fy * (bottom_right - bottom_left), bottom_row - top_row, top_row + fy * (bottom_row - top_row)
+    return (_real(1.0, fy) - fy) * (top_right - top_left) + fy * (bottom_right - bottom_left), bottom_row - top_row, top_row + fy * (bottom_row - top_row)
 
 
 @_inline
@@ -245,24 +255,27 @@ def _tap_gradients(z_x, speed_x, inverse_x, distance, g_alpha, v_yx, v_yy, z_y, 
     cone_x = _cone(distance, inverse_x)
     cylinder_y = _cylinder(distance, inverse_y)
     cylinder_x = _cylinder(distance, inverse_x)
-    alpha = front * cone_y + behind * cone_x + cylinder_y * cylinder_x * 2.0
+    two = _real(2.0, distance * inverse_x)
+    alpha = front * cone_y + behind * cone_x + cylinder_y * cylinder_x * two
     g_front = g_alpha * cone_y
     g_behind = g_alpha * cone_x
-    front_slope = g_front * inverse_extent if (z_y - z_x >= 0.0) & (z_y - z_x <= extent) else 0.0
-    behind_slope = g_behind * inverse_extent if (z_x - z_y >= 0.0) & (z_x - z_y <= extent) else 0.0
+    zero = _real(0.0, g_front * inverse_extent)
+    front_slope = g_front * inverse_extent if (z_y - z_x >= 0.0) & (z_y - z_x <= extent) else zero
+    behind_slope = g_behind * inverse_extent if (z_x - z_y >= 0.0) & (z_x - z_y <= extent) else zero
     g_distance, g_speed_y = _cone_grad(distance, speed_y, inverse_y, g_alpha * front)
     d_distance, g_speed_x = _cone_grad(distance, speed_x, inverse_x, g_alpha * behind)
     g_distance += d_distance
-    d_distance, d_speed = _cylinder_grad(distance, speed_y, inverse_y, g_alpha * 2.0 * cylinder_x)
+    d_distance, d_speed = _cylinder_grad(distance, speed_y, inverse_y, g_alpha * two * cylinder_x)
     g_distance += d_distance
     g_speed_y += d_speed
-    d_distance, d_speed = _cylinder_grad(distance, speed_x, inverse_x, g_alpha * 2.0 * cylinder_y)
+    d_distance, d_speed = _cylinder_grad(distance, speed_x, inverse_x, g_alpha * two * cylinder_y)
     g_distance += d_distance
     g_speed_x += d_speed
     # V[Y] through speed_y = max(|V[Y]|, min_radius).
     moving = (length_y >= min_radius) & (length_y > 0.0)
-    g_v_yx = g_speed_y * v_yx / length_y if moving else 0.0
-    g_v_yy = g_speed_y * v_yy / length_y if moving else 0.0
+    zero = _real(0.0, g_speed_y * v_yx)
+    g_v_yx = g_speed_y * v_yx / length_y if moving else zero
+    g_v_yy = g_speed_y * v_yy / length_y if moving else zero
     return alpha, g_v_yx, g_v_yy, behind_slope - front_slope, g_speed_x, front_slope - behind_slope, g_distance
 
 
@@ -309,7 +322,7 @@ def _reconstruct_forward(
     stored = channels + 3
     plane = height * width
     jitter_batch = jitter.shape[0]
-    inverse_extent = 1.0 / extent
+    inverse_extent = _real(1.0, extent) / extent
     image_rows = batch * height
     last_x = width - 1.0
     last_y = height - 1.0
@@ -334,7 +347,7 @@ def _reconstruct_forward(
                     continue
                 _block_state(velocity, depth, neighbors, jitter, b, jb, y, start, end, tile, min_radius, chunk, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s)
                 for p in range(size):
-                    weight_s[chunk, p] = 1.0 / speed_x_s[chunk, p]
+                    weight_s[chunk, p] = _real(1.0, weight_s) / speed_x_s[chunk, p]
                 for c in range(channels):
                     for p in range(size):  # vectorized
                         total_s[chunk, c, p] = weight_s[chunk, p] * color[b, c, y, start + p]
@@ -352,7 +365,10 @@ def _reconstruct_forward(
                             shift_x = nx_s[chunk, q] * t
                             py = y + ny_s[chunk, q] * t
                             row0, row1, fy, _, shift, fx, first, last = _shifted_rows(py, shift_x, start, segment, segment_end, height, width, last_y)
-                            distance = abs(t) * speed_n_s[chunk, q]
+                            # The taps' arithmetic in the images' precision: float32 vectors hold twice the lanes.
+                            distance = _real(abs(t) * speed_n_s[chunk, q], color_flat)
+                            fx = _real(fx, color_flat)
+                            fy = _real(fy, color_flat)
                             below = np.uint64((row1 - row0) * width)
                             top = row0 * width + start + shift  # + u: pixel u's top-left read
                             top_vx = np.uint64(2 * b * plane + top)
@@ -434,8 +450,8 @@ def _add_shifted(grads_rows, at, below, fx, fy, value_s, chunk, first, last):
     if last <= first:
         return
     one = np.uint64(1)
-    for row, row_weight in ((at, 1.0 - fy), (at + below, fy)):
-        left = row_weight * (1.0 - fx)
+    for row, row_weight in ((at, _real(1.0, fy) - fy), (at + below, fy)):
+        left = row_weight * (_real(1.0, fx) - fx)
         right = row_weight * fx
         grads_rows[row + np.uint64(first)] += left * value_s[chunk, np.uint64(first)]
         for u in range(np.uint64(first) + one, np.uint64(last)):  # vectorized: contiguous adds
@@ -463,7 +479,7 @@ def _border_tap_backward(
     batch, channels, height, width = color.shape
     last_x = width - 1.0
     last_y = height - 1.0
-    inverse_extent = 1.0 / extent
+    inverse_extent = _real(1.0, extent) / extent
     plane = height * width
     stored = channels + 3
     column, row0, fx, fy, inside_x, inside_y = _tap_corner(px, py, last_x, last_y)
@@ -526,7 +542,7 @@ def _reconstruct_backward(
     stored = channels + 3
     plane = height * width
     jitter_batch = jitter.shape[0]
-    inverse_extent = 1.0 / extent
+    inverse_extent = _real(1.0, extent) / extent
     chunks = grad_neighbors.shape[0]
     image_rows = batch * height
     last_x = width - 1.0
@@ -558,7 +574,7 @@ def _reconstruct_backward(
                 for c in range(channels):
                     for p in range(size):  # vectorized
                         x = start + p
-                        g_total = grad_out[b, c, y, x] / np.float64(weight[b, y, x])
+                        g_total = grad_out[b, c, y, x] / weight[b, y, x]
                         g_total_s[chunk, c, p] = g_total
                         out_s[chunk, c, p] = out[b, c, y, x]
                         g_speed_x_s[chunk, p] += g_total * (color[b, c, y, x] - out[b, c, y, x])
@@ -588,7 +604,13 @@ def _reconstruct_backward(
                             py = y + ny_s[chunk, q] * t
                             row0, row1, fy, inside_y, shift, fx, first, last = _shifted_rows(py, shift_x, start, segment, segment_end, height, width, last_y)
                             distance = abs(t) * speed_n_s[chunk, q]
-                            along = abs(t)
+                            along = _real(abs(t), color_flat)
+                            # The taps' arithmetic in the images' precision: float32 vectors hold twice the lanes.
+                            distance_r = _real(distance, color_flat)
+                            t_r = _real(t, color_flat)
+                            inside_y_r = _real(inside_y, color_flat)
+                            fx_r = _real(fx, color_flat)
+                            fy_r = _real(fy, color_flat)
                             below = np.uint64((row1 - row0) * width)
                             top = row0 * width + start + shift  # + u: pixel u's top-left read
                             top_vx = np.uint64(2 * b * plane + top)
@@ -601,17 +623,17 @@ def _reconstruct_backward(
                             for c in range(channels):
                                 top_c = np.uint64((b * channels + c) * plane + top)
                                 for u in range(np.uint64(first), np.uint64(last)):  # vectorized: the colours read
-                                    d_x, d_y, c_y = _row_read_slopes(color_flat, top_c + u, below, fx, fy)
+                                    d_x, d_y, c_y = _row_read_slopes(color_flat, top_c + u, below, fx_r, fy_r)
                                     g_total = g_total_s[chunk, c, u]
                                     g_alpha_s[chunk, u] += g_total * (c_y - out_s[chunk, c, u])
                                     slope_x_s[chunk, u] += g_total * d_x  # times alpha below
                                     slope_y_s[chunk, u] += g_total * d_y
                             for u in range(np.uint64(first), np.uint64(last)):  # vectorized: the classifiers
-                                slope_vxx, slope_vxy, v_yx = _row_read_slopes(velocity_flat, top_vx + u, below, fx, fy)
-                                slope_vyx, slope_vyy, v_yy = _row_read_slopes(velocity_flat, top_vy + u, below, fx, fy)
-                                slope_zx, slope_zy, z_y = _row_read_slopes(depth_flat, top_z + u, below, fx, fy)
+                                slope_vxx, slope_vxy, v_yx = _row_read_slopes(velocity_flat, top_vx + u, below, fx_r, fy_r)
+                                slope_vyx, slope_vyy, v_yy = _row_read_slopes(velocity_flat, top_vy + u, below, fx_r, fy_r)
+                                slope_zx, slope_zy, z_y = _row_read_slopes(depth_flat, top_z + u, below, fx_r, fy_r)
                                 alpha, g_v_yx, g_v_yy, g_z_y, g_speed_x, g_z_x, g_distance = _tap_gradients(
-                                    z_x_s[chunk, u], speed_x_s[chunk, u], inverse_x_s[chunk, u], distance, g_alpha_s[chunk, u], v_yx, v_yy, z_y, min_radius, extent, inverse_extent
+                                    z_x_s[chunk, u], speed_x_s[chunk, u], inverse_x_s[chunk, u], distance_r, g_alpha_s[chunk, u], v_yx, v_yy, z_y, min_radius, extent, inverse_extent
                                 )
                                 g_fx = alpha * slope_x_s[chunk, u] + g_v_yx * slope_vxx + g_v_yy * slope_vyx + g_z_y * slope_zx
                                 g_fy = alpha * slope_y_s[chunk, u] + g_v_yx * slope_vxy + g_v_yy * slope_vyy + g_z_y * slope_zy
@@ -621,20 +643,20 @@ def _reconstruct_backward(
                                 g_z_y_s[chunk, u] = g_z_y
                                 g_speed_x_s[chunk, u] += g_speed_x
                                 g_z_x_s[chunk, u] += g_z_x
-                                g_nx_s[chunk, u] += g_fx * t  # an interior tap: its x is not clamped
-                                g_ny_s[chunk, u] += g_fy * t * inside_y
+                                g_nx_s[chunk, u] += g_fx * t_r  # an interior tap: its x is not clamped
+                                g_ny_s[chunk, u] += g_fy * t_r * inside_y_r
                                 g_speed_n_s[chunk, u] += g_distance * along
                             image = (chunk * batch + b) * stored * plane + top
                             if scatter_color != 0:
                                 for c in range(channels):
                                     for u in range(np.uint64(first), np.uint64(last)):
                                         value_s[chunk, u] = alpha_s[chunk, u] * g_total_s[chunk, c, u]
-                                    _add_shifted(grads_rows, np.uint64(image + c * plane), below, fx, fy, value_s, chunk, first, last)
+                                    _add_shifted(grads_rows, np.uint64(image + c * plane), below, fx_r, fy_r, value_s, chunk, first, last)
                             if scatter_velocity != 0:
-                                _add_shifted(grads_rows, np.uint64(image + channels * plane), below, fx, fy, g_v_yx_s, chunk, first, last)
-                                _add_shifted(grads_rows, np.uint64(image + (channels + 1) * plane), below, fx, fy, g_v_yy_s, chunk, first, last)
+                                _add_shifted(grads_rows, np.uint64(image + channels * plane), below, fx_r, fy_r, g_v_yx_s, chunk, first, last)
+                                _add_shifted(grads_rows, np.uint64(image + (channels + 1) * plane), below, fx_r, fy_r, g_v_yy_s, chunk, first, last)
                             if scatter_depth != 0:
-                                _add_shifted(grads_rows, np.uint64(image + (channels + 2) * plane), below, fx, fy, g_z_y_s, chunk, first, last)
+                                _add_shifted(grads_rows, np.uint64(image + (channels + 2) * plane), below, fx_r, fy_r, g_z_y_s, chunk, first, last)
                             for p in range(q, segment_end - start):  # the border, clamped: one by one
                                 if p < first or p >= last:
                                     _border_tap_backward(
@@ -875,8 +897,9 @@ def reconstruct_forward(
     weight = np.empty((batch, height, width), dtype=color.dtype)
     chunks = min(batch * height, _threads())
     rows = shifted_rows(jitter, tile, own_odd)
-    settings = (int(tile), float(soft_z_extent), float(min_radius), int(own_odd), int(rows), row_order(batch * height), chunks)
-    scratch = scratch_for(ReconstructForwardScratch, chunks, channels)
+    real = color.dtype.type  # the kernels compute in the images' precision
+    settings = (int(tile), real(soft_z_extent), real(min_radius), int(own_odd), int(rows), row_order(batch * height), chunks)
+    scratch = scratch_for(ReconstructForwardScratch, chunks, channels, color.dtype)
     pairs = _no_pairs(color) if rows else _pairs(color, velocity, depth)
     flats = (color.reshape(-1), velocity.reshape(-1), depth.reshape(-1))
     _reconstruct_forward(pairs, *flats, color, velocity, depth, neighbors, counts, jitter, *settings, out, weight, *scratch)
@@ -952,8 +975,9 @@ def reconstruct_backward_stacked(
         grads_rows = np.zeros(0, dtype=color.dtype)
     grad_neighbors = np.zeros((chunks, *neighbors.shape), dtype=color.dtype)
     need_color, need_velocity, need_depth = (bool(need) for need in needs)
-    settings = (int(tile), float(soft_z_extent), float(min_radius), int(own_odd), int(rows), row_order(batch * height), int(need_color), int(need_velocity), int(need_depth))
-    scratch = scratch_for(ReconstructBackwardScratch, chunks, channels)
+    real = color.dtype.type  # the kernels compute in the images' precision
+    settings = (int(tile), real(soft_z_extent), real(min_radius), int(own_odd), int(rows), row_order(batch * height), int(need_color), int(need_velocity), int(need_depth))
+    scratch = scratch_for(ReconstructBackwardScratch, chunks, channels, color.dtype)
     pairs = _no_pairs(color) if rows else _pairs(color, velocity, depth)
     arrays = (pairs, color.reshape(-1), velocity.reshape(-1), depth.reshape(-1), color, velocity, depth, neighbors, counts, jitter)
     _reconstruct_backward(*arrays, *settings, out, weight, grad_out, grads, grads_rows, grad_neighbors, *scratch)

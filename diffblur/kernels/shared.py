@@ -36,6 +36,10 @@ __all__ = [
 
 try:  # numba is a dependency; the guard keeps the pure ops usable where it cannot load.
     import numba
+    from llvmlite import ir as _ir
+    from numba.core import types as _types
+    from numba.extending import intrinsic as _intrinsic
+    from numba.extending import overload as _overload
 except ImportError:  # pragma: no cover - exercised only without numba
     numba = None
 
@@ -128,20 +132,38 @@ def _inline(function):
     return numba.njit(inline="always", cache=True, error_model="numpy", fastmath=True)(function)
 
 
+def _real(value, like):  # pragma: no cover - numba compiles the overload below
+    raise NotImplementedError
+
+
+if numba is not None:
+
+    @_overload(_real, inline="always")
+    def _real_overload(value, like):
+        """`value` in the floating type of `like` (a scalar or an array): float32 stays float32,
+        anything else is float64. A literal such as 1.0 is float64 to numba and would turn float32
+        arithmetic into float64; the kernels write their constants as _real(1.0, x) instead."""
+        kind = like.dtype if isinstance(like, _types.Array) else like
+        if kind == _types.float32:
+            return lambda value, like: np.float32(value)
+        return lambda value, like: np.float64(value)
+
+
 @_inline
 def _length(a, b):
     squared = a * a + b * b
-    return math.sqrt(squared) if squared > 0.0 else 0.0
+    return math.sqrt(squared) if squared > 0.0 else _real(0.0, squared)
 
 
 @_inline
 def _soft_depth_compare(z_a, z_b, extent, inverse_extent):
     behind = z_b - z_a
+    ramp = behind * inverse_extent
     if behind < 0.0:
-        return 1.0
+        return _real(1.0, ramp)
     if behind > extent:
-        return 0.0
-    return 1.0 - behind * inverse_extent
+        return _real(0.0, ramp)
+    return _real(1.0, ramp) - ramp
 
 
 @_jit
@@ -173,10 +195,6 @@ _BLOCK = 256
 
 
 if numba is not None:
-    from llvmlite import ir as _ir
-    from numba.core import types as _types
-    from numba.extending import intrinsic as _intrinsic
-    from numba.extending import overload as _overload
 
     @_intrinsic
     def _split_float32_pair(typingctx, bits):
@@ -344,11 +362,12 @@ ChannelFloats = NewType("ChannelFloats", np.ndarray)
 Scratch = TypeVar("Scratch")
 
 
-def scratch_for(layout: type[Scratch], chunks: int, channels: int) -> Scratch:
+def scratch_for(layout: type[Scratch], chunks: int, channels: int, floats: Any = np.float64) -> Scratch:
     """A fresh `layout` (a kernel's scratch named tuple), each field an uninitialised array of its
-    annotated kind (`Floats`, `Ints`, `ChannelFloats`). The kernel takes it as `*scratch`."""
+    annotated kind (`Floats`, `Ints`, `ChannelFloats`), the floating ones of dtype `floats`. The
+    kernel takes it as `*scratch`."""
     row = _BLOCK + _SCRATCH_GAP
-    shapes = {Floats: ((chunks, row), np.float64), Ints: ((chunks, row), np.int64), ChannelFloats: ((chunks, channels, row), np.float64)}
+    shapes = {Floats: ((chunks, row), floats), Ints: ((chunks, row), np.int64), ChannelFloats: ((chunks, channels, row), floats)}
     kinds = get_type_hints(layout)
     return layout(*(np.empty(*shapes[kinds[name]]) for name in layout._fields))
 
