@@ -1,5 +1,6 @@
 """`reconstruct` and `gather_blur` on the fused CPU kernels (`diffblur.kernels.reconstruct`,
-`diffblur.kernels.gather`): `custom_vjp`s over `pure_callback`.
+`diffblur.kernels.gather`): `custom_vjp`s over host calls, `reconstruct`'s an XLA FFI call whose
+kernels write into XLA's buffers (`jax_impl._ffi`), `gather_blur`'s a `pure_callback`.
 
 The kernels run on the host, inside or outside `jax.jit`; reverse mode (grad, vjp) uses the
 kernels' backward, for the differentiated inputs only (`symbolic_zeros=True` tells the rules which). Forward mode (jvp, jacfwd, linearize) is not defined for a custom_vjp: such
@@ -24,6 +25,7 @@ from diffblur.kernels import reconstruct as reconstruct_kernel
 from diffblur.ops.adaptive import ADAPTIVE_TILE, STILL_SPEED
 from diffblur.ops import primitives
 from jax_impl._backend import JAX
+from jax_impl._ffi import host_target
 
 
 def _backend_reason() -> str | None:
@@ -73,22 +75,27 @@ def gather_unfused_reason(color, sampling: str) -> str | None:
     return gather_kernel.gather_unfused_reason(sampling, str(jnp.dtype(color.dtype))) or _backend_reason()
 
 
-@lru_cache(maxsize=256)
+@lru_cache(maxsize=None)
 def _bound(function, settings):
     """The same host callable for the same settings: eager pure_callback calls then hit JAX's cache
-    instead of compiling a new call each time."""
+    instead of compiling a new call each time, and an FFI call registers one target per settings
+    (a handful per process: tile, band, radius, directions and the gradients asked for)."""
     return partial(function, settings)
 
 
-def _host_forward(settings, color, velocity, depth, neighbors, counts, jitter):
-    arrays = (np.ascontiguousarray(a) for a in (color, velocity, depth, neighbors, counts, jitter))
-    return reconstruct_kernel.reconstruct_forward(*arrays, **dict(settings))
+def _host_forward(settings, arguments, results):
+    """The FFI handler's body: color, velocity, depth, neighbors, counts, jitter -> out, weight."""
+    reconstruct_kernel.reconstruct_forward(*arguments, **dict(settings), into=results)
 
 
-def _host_backward(settings, *arrays):
-    """The gradients asked for (settings' "needs"), in order, without the Nones."""
-    grads = reconstruct_kernel.reconstruct_backward(*(np.ascontiguousarray(a) for a in arrays), **dict(settings))
-    return tuple(g for g in grads if g is not None)
+def _host_backward(settings, arguments, results):
+    """The FFI handler's body: the gradients asked for (settings' "needs"), in order."""
+    reconstruct_kernel.reconstruct_backward(*arguments, **dict(settings), into=results)
+
+
+def _host_call(function, settings, shapes):
+    # "sequential" under vmap: the kernel already loops over its batch axis.
+    return jax.ffi.ffi_call(host_target(_bound(function, settings)), shapes, vmap_method="sequential")
 
 
 def _needs(*primals) -> tuple:
@@ -106,8 +113,7 @@ def _fused_core(settings, color, velocity, depth, neighbors, counts, jitter):
 def _forward(settings, color, velocity, depth, neighbors, counts, jitter):
     batch, _, height, width = color.shape
     shapes = (jax.ShapeDtypeStruct(color.shape, color.dtype), jax.ShapeDtypeStruct((batch, height, width), color.dtype))
-    # "sequential" under vmap: the kernel already loops over its batch axis.
-    return jax.pure_callback(_bound(_host_forward, settings), shapes, color, velocity, depth, neighbors, counts, jitter, vmap_method="sequential")
+    return _host_call(_host_forward, settings, shapes)(color, velocity, depth, neighbors, counts, jitter)
 
 
 def _fused_core_fwd(settings, *primals):
@@ -127,7 +133,7 @@ def _fused_core_bwd(settings, residuals, grad_out):
         return (None,) * 6
     wanted = [a for a, need in zip((color, velocity, depth, neighbors), (*needs, needs[1])) if need]
     shapes = tuple(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in wanted)
-    grads = iter(jax.pure_callback(_bound(_host_backward, (*settings, ("needs", needs))), shapes, *arrays, grad_out, vmap_method="sequential"))
+    grads = iter(_host_call(_host_backward, (*settings, ("needs", needs)), shapes)(*arrays, grad_out))
     # counts (integers) and jitter (not differentiated on the fused path) get none.
     return (*(next(grads) if need else None for need in (*needs, needs[1])), None, None)
 

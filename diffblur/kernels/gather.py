@@ -344,5 +344,5 @@ def gather_backward(
     grad_color = None
     if need_color:
         grad_color = np.empty_like(color)
-        _deinterleave_sum(grads, grad_color)
+        _deinterleave_sum(grads, grad_color, 0)
     return grad_color, grad_velocity if need_velocity else None, grad_masses.sum(axis=0) if need_masses else None

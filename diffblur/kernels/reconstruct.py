@@ -771,20 +771,21 @@ def _reconstruct_backward(
 
 
 @_jit
-def _sum_planar_chunks(grads_rows, out):
-    """Sum the flat (chunks, B, K, H, W) per-chunk gradient buffers into out (B, K, H, W)."""
+def _sum_planar_chunks(grads_rows, out, first, stored):
+    """Sum channels [first, first + K) of the flat (chunks, B, stored, H, W) per-chunk gradient
+    buffers into out (B, K, H, W)."""
     batch, channels, height, width = out.shape
-    size = batch * channels * height * width
-    chunks = grads_rows.shape[0] // size
+    plane = height * width
+    chunks = grads_rows.shape[0] // (batch * stored * plane)
     for row in numba.prange(batch * channels * height):
         b = row // (channels * height)
         c = (row // height) % channels
         y = row % height
-        start = row * width
+        start = (b * stored + first + c) * plane + y * width
         for x in range(width):
             total = 0.0
             for chunk in range(chunks):
-                total += grads_rows[chunk * size + start + x]
+                total += grads_rows[chunk * batch * stored * plane + start + x]
             out[b, c, y, x] = total
 
 
@@ -886,15 +887,16 @@ def reconstruct_forward(
     soft_z_extent: float,
     min_radius: float,
     own_odd: bool,
+    into: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The reconstruction filter, fused. color (B, C, H, W), velocity (B, 2, H, W), depth (B, 1, H,
     W), neighbors (B, 2, TH, TW) NeighborMax, counts (B, TH, TW) taps per tile (0: the image),
     jitter (B or 1, 1, H, W), all C-contiguous in one float dtype (counts int32). Returns the
-    image and the per-pixel weight sum (B, H, W) that the backward needs."""
+    image and the per-pixel weight sum (B, H, W) that the backward needs, written into `into`'s
+    two C-contiguous arrays when given (a caller's own buffers, e.g. XLA's), else new ones."""
     color, velocity, depth, neighbors, counts, jitter = read_only(color, velocity, depth, neighbors, counts, jitter)
     batch, channels, height, width = color.shape
-    out = np.empty_like(color)
-    weight = np.empty((batch, height, width), dtype=color.dtype)
+    out, weight = into if into is not None else (np.empty_like(color), np.empty((batch, height, width), dtype=color.dtype))
     chunks = min(batch * height, _threads())
     rows = shifted_rows(jitter, tile, own_odd)
     real = color.dtype.type  # the kernels compute in the images' precision
@@ -922,22 +924,27 @@ def reconstruct_backward(
     min_radius: float,
     own_odd: bool,
     needs: tuple[bool, bool, bool] = (True, True, True),
+    into: list[np.ndarray] | None = None,
 ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """Gradients of `reconstruct_forward`'s image w.r.t. color, velocity, depth and neighbors,
-    given the forward's out and weight and the output's gradient grad_out. needs: whether color,
-    velocity and depth want theirs; None for the others, whose scatter to the taps' pixels (most of
-    the backward's time) is skipped. neighbors' comes with velocity's."""
-    total, grad_neighbors = reconstruct_backward_stacked(
-        color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out, tile=tile, soft_z_extent=soft_z_extent, min_radius=min_radius, own_odd=own_odd, needs=needs
-    )
+    given the forward's out and weight and the output's gradient grad_out, each a C-contiguous
+    array of its own. needs: whether color, velocity and depth want theirs; None for the others,
+    whose scatter to the taps' pixels (most of the backward's time) is skipped. neighbors' comes
+    with velocity's. into: the arrays to write the gradients asked for into, in that order (a
+    caller's own buffers, e.g. XLA's); new ones when None."""
+    buffers, grad_neighbors = _backward_chunks(color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out, tile, soft_z_extent, min_radius, own_odd, needs)
     channels = color.shape[1]
     need_color, need_velocity, need_depth = (bool(need) for need in needs)
-    return (
-        total[:, :channels] if need_color else None,
-        total[:, channels : channels + 2] if need_velocity else None,
-        total[:, channels + 2 :] if need_depth else None,
-        grad_neighbors,
-    )
+    targets = iter(into) if into is not None else None
+    grads = []
+    for need, first, count in ((need_color, 0, channels), (need_velocity, channels, 2), (need_depth, channels + 2, 1)):
+        target = next(targets) if need and targets is not None else None
+        grads.append(_summed(buffers, color, first, count, target) if need else None)
+    if need_velocity and targets is not None:
+        grad_neighbors = np.sum(grad_neighbors, axis=0, out=next(targets))
+    elif need_velocity:
+        grad_neighbors = grad_neighbors.sum(axis=0)
+    return (*grads, grad_neighbors if need_velocity else None)
 
 
 def reconstruct_backward_stacked(
@@ -959,9 +966,16 @@ def reconstruct_backward_stacked(
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """`reconstruct_backward` with the gradients w.r.t. color, velocity and depth in one array
     (B, C + 3, H, W), stacked along the channels as the kernel writes them (the channels of one not
-    asked for are left unwritten), and neighbors' gradient (None unless velocity's is asked for).
+    asked for hold no meaning), and neighbors' gradient (None unless velocity's is asked for).
     The PyTorch operator returns this array whole and slices it, as an operator's outputs may not
     be views of one another."""
+    buffers, grad_neighbors = _backward_chunks(color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out, tile, soft_z_extent, min_radius, own_odd, needs)
+    return _summed(buffers, color, 0, color.shape[1] + 3), grad_neighbors.sum(axis=0) if needs[1] else None
+
+
+def _backward_chunks(color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out, tile, soft_z_extent, min_radius, own_odd, needs):
+    """Run `_reconstruct_backward`: its per-chunk gradient buffers (for `_summed`) and NeighborMax's
+    per-chunk gradients (chunks, B, 2, TH, TW)."""
     color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out = read_only(color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out)
     batch, channels, height, width = color.shape
     chunks = min(_threads(), batch * height)
@@ -981,9 +995,16 @@ def reconstruct_backward_stacked(
     pairs = _no_pairs(color) if rows else _pairs(color, velocity, depth)
     arrays = (pairs, color.reshape(-1), velocity.reshape(-1), depth.reshape(-1), color, velocity, depth, neighbors, counts, jitter)
     _reconstruct_backward(*arrays, *settings, out, weight, grad_out, grads, grads_rows, grad_neighbors, *scratch)
-    total = np.empty((batch, stored, height, width), dtype=color.dtype)
+    return (grads, grads_rows, rows, stored), grad_neighbors
+
+
+def _summed(buffers, color: np.ndarray, first: int, count: int, into: np.ndarray | None = None) -> np.ndarray:
+    """Channels [first, first + count) of `_backward_chunks`' buffers summed over the chunks, into
+    `into` (B, count, H, W, C-contiguous) or a new array."""
+    grads, grads_rows, rows, stored = buffers
+    total = into if into is not None else np.empty((color.shape[0], count, *color.shape[2:]), dtype=color.dtype)
     if rows:
-        _sum_planar_chunks(grads_rows, total)
+        _sum_planar_chunks(grads_rows, total, first, stored)
     else:
-        _deinterleave_sum(grads, total)
-    return total, grad_neighbors.sum(axis=0) if need_velocity else None
+        _deinterleave_sum(grads, total, first)
+    return total

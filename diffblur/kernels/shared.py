@@ -167,9 +167,11 @@ def _soft_depth_compare(z_a, z_b, extent, inverse_extent):
 
 
 @_jit
-def _deinterleave_sum(grads, out):
-    """Sum the (chunks, B, H, W, K) per-chunk gradient buffers into out (B, K, H, W)."""
-    chunks, batch, height, width, channels = grads.shape
+def _deinterleave_sum(grads, out, first):
+    """Sum channels [first, first + K) of the (chunks, B, H, W, stored) per-chunk gradient buffers
+    into out (B, K, H, W)."""
+    chunks, batch, height, width, _ = grads.shape
+    channels = out.shape[1]
     for row in numba.prange(batch * height):
         b = row // height
         y = row % height
@@ -177,7 +179,7 @@ def _deinterleave_sum(grads, out):
             for c in range(channels):
                 total = 0.0
                 for chunk in range(chunks):
-                    total += grads[chunk, b, y, x, c]
+                    total += grads[chunk, b, y, x, first + c]
                 out[b, c, y, x] = total
 
 

@@ -13,6 +13,8 @@ import jax_impl
 
 CALLS = {
     "gather_blur": lambda c, v, z: jax_impl.gather_blur(c, v, samples=5),
+    "reconstruct": lambda c, v, z: jax_impl.reconstruct(c, v, z, samples=5, max_radius=4, jitter="none", impl="fused"),
+    "reconstruct, per-pixel taps": lambda c, v, z: jax_impl.reconstruct(c, v, z, samples=5, max_radius=4, directions="neighbor_and_own", jitter="none", impl="fused"),
     "bezier_scatter": lambda c, v, z: jax_impl.bezier_scatter(c, z, -v, v, samples=5, fill="color"),
 }
 
