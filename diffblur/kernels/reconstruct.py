@@ -10,7 +10,9 @@ wraps them in custom operators, `jax_impl._fused` in a `custom_vjp` over `pure_c
 
 The pure tensor ops stay the reference: tests compare outputs and gradients of both paths. The
 kernels repeat the pure ops' arithmetic (the same clamps, floors and `where` branches, so the same
-one-sided derivatives at kinks) in float64, reading and writing the arrays' dtype.
+one-sided derivatives at kinks), reading and writing the arrays' dtype. `reconstruct`'s shifted
+rows compute the taps in that dtype too (float32 vectors hold twice the lanes); the per-pixel taps
+and the other kernels compute in float64.
 
 Scope, checked by `reconstruct_unfused_reason`: bilinear sampling, the box shutter, float32 or
 float64, no pyramid. The tap count is per tile (`counts`), which is how adaptive sampling and the
@@ -169,7 +171,7 @@ def _tap_alpha(z_x, z_y, v_yx, v_yy, distance, inverse_x, min_radius, extent, in
 @_inline
 def _row_read(flat, top, below, fx, fy):
     """Bilinear read of a flat image at index `top` (top-left) and `top + below` (the row below), in
-    float64, the arithmetic of `_pair_read`. Along a shifted row consecutive pixels read consecutive
+    the images' dtype, the arithmetic of `_pair_read`. Along a shifted row consecutive pixels read consecutive
     indices: contiguous vector loads, no gathers. The indices are unsigned: a signed index would
     carry numba's negative-index wraparound, a select that turns the loads into gathers."""
     one = np.uint64(1)
