@@ -129,6 +129,42 @@ def test_shifted_rows_across_tiles_of_one_motion(jitter):
     _assert_close(_jax_run(arrays, jax_options, "fused", jax.jit), _jax_run(arrays, jax_options, "tensor"), FUSED_FLOAT64)
 
 
+@pytest.mark.parametrize(("batch", "height", "tiles_y", "threads", "largest_y"), [(1, 720, 36, 2, 0.0), (2, 37, 10, 2, 9.2), (3, 11, 3, 8, 2.5), (1, 5, 1, 2, 40.0)])
+def test_shifted_row_bands_cover_every_row_once_and_the_taps_reach(batch, height, tiles_y, threads, largest_y):
+    """The shifted-row backward's bands: whole tile rows of one image each, together every row once
+    in order, and margins deep enough for the farthest row a tap reads (|NeighborMax_y| + 1)."""
+    tile = -(-height // tiles_y)
+    neighbors = np.zeros((batch, 2, tiles_y, 3))
+    neighbors[-1, 1, -1, 0] = -largest_y
+    bands, reach = reconstruct_kernel._bands(neighbors, height, tile, threads)
+    assert bands[0] == 0 and bands[-1] == batch * height and np.all(np.diff(bands) > 0)
+    for start, end in zip(bands[:-1], bands[1:]):
+        assert start // height == (end - 1) // height  # within one image
+        assert start % height % tile == 0 and (end % height == 0 or end % height % tile == 0)
+    assert min(height, largest_y + 1) <= reach <= height
+
+
+def test_shifted_rows_with_motion_across_several_bands():
+    """Vertical motion longer than a band is tall: a tap's gradient lands in bands above and below
+    its own (each band's margins, added after the kernel), on a batch of images."""
+    tile = 9  # max_radius: the tiles' size and the longest motion
+    rng = np.random.default_rng(7)
+    height, width = 37, 29
+    color, depth = rng.random((BATCH, CHANNELS, height, width)), 1.0 + rng.random((BATCH, 1, height, width))
+    velocity = np.zeros((BATCH, 2, height, width))
+    velocity[:, 1] = 3.1
+    velocity[0, :, 5:20, 3:15] = np.array([1.3, -8.0]).reshape(2, 1, 1)  # up, beyond the next band
+    velocity[1, :, 18:30, 10:25] = np.array([-2.2, 7.5]).reshape(2, 1, 1)
+    velocity += rng.normal(0, 0.2, size=velocity.shape)
+    cotangent = rng.standard_normal((BATCH, CHANNELS, height, width))
+    options = dict(max_radius=float(tile), samples=7, jitter="none")
+    bands, reach = reconstruct_kernel._bands(np.full((BATCH, 2, 5, 4), 8.0), height, tile, 2)
+    assert reach > np.diff(bands).min()  # the margins span more than one band
+    arrays = [color, velocity, depth, cotangent]
+    _assert_close(_torch_run(arrays, options, "fused"), _torch_run(arrays, options, "tensor"), FUSED_FLOAT64)
+    _assert_close(_jax_run(arrays, options, "fused", jax.jit), _jax_run(arrays, options, "tensor"), FUSED_FLOAT64)
+
+
 def test_float32_both_frameworks_agree():
     arrays = _scene(np.float32, seed=1)
     options = CASES["default"]

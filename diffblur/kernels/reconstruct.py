@@ -31,8 +31,13 @@ Two ways to read the taps, chosen per call by `shifted_rows`:
   from a buffer of (left, right) pairs, and the backward scatters each tap's gradient to the 4
   pixels it read, which lanes may share, one pixel at a time.
 
-Either way each thread accumulates the gradients into its own full-size buffer, summed at the end,
-so the backward's memory is O(pixels x threads) (2 threads here), never O(pixels x taps).
+The backward's scatter adds to pixels that other rows' taps also read. With shifted rows the
+image is cut into bands of whole tile rows (`_bands`, 4 per thread, taken by the threads as they come
+free); a band writes its own rows of the output in place and the rows its taps read beyond them
+(|NeighborMax_y| + 2 above and below) into margins of its own, added to the output after
+(`_add_margins`): no thread writes another's element, and the memory is the output plus the margins.
+Per pixel, each thread accumulates into its own full-size buffer, summed at the end: O(pixels x
+threads) (2 threads here). Neither is O(pixels x taps).
 """
 
 from __future__ import annotations
@@ -435,49 +440,67 @@ def _reconstruct_forward(
 
 @_inline
 def _add_gradient(grads, grads_rows, rows, chunk, b, y, x, k, value, batch, stored, plane, width):
-    """Add value to input channel k's gradient at pixel (y, x) of image b in chunk `chunk`'s buffer:
-    the planar flat `grads_rows` when rows = 1, the interleaved `grads` else."""
+    """Add value to input channel k's gradient at pixel (y, x) of image b: into the planar flat
+    (B, stored, H, W) `grads_rows` when rows = 1 (the pixel's row is its band's own), into chunk
+    `chunk`'s interleaved `grads` else."""
     if rows != 0:
-        grads_rows[((chunk * batch + b) * stored + k) * plane + y * width + x] += value
+        grads_rows[(b * stored + k) * plane + y * width + x] += value
     else:
         grads[chunk, b, y, x, k] += value
 
 
 @_inline
-def _add_shifted(grads_rows, at, below, fx, fy, value_s, chunk, first, last):
-    """Add value_s[chunk, u] for u in [first, last) to the 4 pixels pixel u's tap read (flat indices
-    at + u, at + u + 1 and the same `below`), each with its bilinear weight: one loop per row read,
-    pixel at + u taking the left share of value u and the right share of value u - 1, so that no two
-    lanes of a vector add to one pixel and each pixel is loaded and stored once per row."""
-    if last <= first:
-        return
-    one = np.uint64(1)
-    for row, row_weight in ((at, _real(1.0, fy) - fy), (at + below, fy)):
-        left = row_weight * (_real(1.0, fx) - fx)
-        right = row_weight * fx
-        grads_rows[row + np.uint64(first)] += left * value_s[chunk, np.uint64(first)]
-        for u in range(np.uint64(first) + one, np.uint64(last)):  # vectorized: contiguous adds
-            grads_rows[row + u] += left * value_s[chunk, u] + right * value_s[chunk, u - one]
-        grads_rows[row + np.uint64(last)] += right * value_s[chunk, np.uint64(last) - one]
+def _row_target(bands, chunk, reach, b, row, stored, plane, width, margins):
+    """Where the gradients of row `row` of image b go in the shifted-row backward's flat buffer,
+    for band `chunk`: the index of the row's first pixel in channel 0, and the stride between
+    channels. A band's own rows are the output's (B, stored, H, W) at the buffer's start; the
+    `reach` rows above and below it the band's own margins, (bands, stored, 2 reach, W) from index
+    `margins` on, so that no two bands write one element and none needs a full-size buffer."""
+    first_row = bands[chunk] - b * (plane // width)
+    end_row = bands[chunk + 1] - b * (plane // width)
+    band = margins + chunk * stored * 2 * reach * width
+    above = row < first_row
+    below = row >= end_row
+    at = band + (row - first_row + reach) * width if above else (band + (reach + row - end_row) * width if below else b * stored * plane + row * width)
+    return at, 2 * reach * width if above | below else plane
 
 
 @_inline
-def _scatter_flat(grads_rows, at, width, row0, row1, column0, column1, fx, fy, grad):
-    """`_scatter_chunk` into the planar flat buffer, `at` the index of the plane's first pixel."""
-    grads_rows[at + row0 * width + column0] += grad * (1.0 - fx) * (1.0 - fy)
-    grads_rows[at + row0 * width + column1] += grad * fx * (1.0 - fy)
-    grads_rows[at + row1 * width + column0] += grad * (1.0 - fx) * fy
-    grads_rows[at + row1 * width + column1] += grad * fx * fy
+def _add_row(target, at, row_weight, fx, value_s, chunk, first, last):
+    """Add value_s[chunk, u] for u in [first, last), times row_weight, to the 2 pixels of one row
+    that pixel u's tap read (flat indices at + u and at + u + 1, with their bilinear weights): pixel
+    at + u takes the left share of value u and the right share of value u - 1, so that no two lanes
+    of a vector add to one pixel and each pixel is loaded and stored once."""
+    if last <= first:
+        return
+    one = np.uint64(1)
+    left = row_weight * (_real(1.0, fx) - fx)
+    right = row_weight * fx
+    target[at + np.uint64(first)] += left * value_s[chunk, np.uint64(first)]
+    for u in range(np.uint64(first) + one, np.uint64(last)):  # vectorized: contiguous adds
+        target[at + u] += left * value_s[chunk, u] + right * value_s[chunk, u - one]
+    target[at + np.uint64(last)] += right * value_s[chunk, np.uint64(last) - one]
+
+
+@_inline
+def _scatter_rows(grads_rows, top_at, bottom_at, column0, column1, fx, fy, grad):
+    """`_scatter_chunk` into two rows of the flat buffer, the top row's first pixel at index top_at,
+    the bottom row's at bottom_at (`_row_target`'s)."""
+    grads_rows[top_at + column0] += grad * (1.0 - fx) * (1.0 - fy)
+    grads_rows[top_at + column1] += grad * fx * (1.0 - fy)
+    grads_rows[bottom_at + column0] += grad * (1.0 - fx) * fy
+    grads_rows[bottom_at + column1] += grad * fx * fy
 
 
 @_inline
 def _border_tap_backward(
-    color_flat, velocity_flat, depth_flat, grads_rows, color, b, chunk, p, px, py, t, distance, min_radius, extent, scatter_color, scatter_velocity, scatter_depth,
+    color_flat, velocity_flat, depth_flat, grads_rows, margins, bands, reach, color, b, chunk, p, px, py, t, distance, min_radius, extent, scatter,
     g_total_s, out_s, z_x_s, speed_x_s, inverse_x_s, g_speed_x_s, g_z_x_s, g_nx_s, g_ny_s, g_speed_n_s,
 ):
     """One pixel's tap on the shifted rows' clamped border, the general path's arithmetic: the
-    classifiers' derivatives into the pixel's sums, the reads' gradients into grads_rows. Fewer
-    than 30 arguments: past that Python passes them as *args, which numba cannot inline."""
+    classifiers' derivatives into the pixel's sums, the reads' gradients where `_row_target` puts
+    them; scatter: the inputs whose reads' gradients are wanted, 1 colour + 2 velocity + 4 depth.
+    Fewer than 30 arguments: past that Python passes them as *args, which numba cannot inline."""
     batch, channels, height, width = color.shape
     last_x = width - 1.0
     last_y = height - 1.0
@@ -509,48 +532,61 @@ def _border_tap_backward(
     g_nx_s[chunk, p] += g_fx * t * inside_x
     g_ny_s[chunk, p] += g_fy * t * inside_y
     g_speed_n_s[chunk, p] += g_distance * abs(t)
-    image = (chunk * batch + b) * stored * plane
-    if scatter_color != 0:
+    top_at, top_stride = _row_target(bands, chunk, reach, b, row0, stored, plane, width, margins)
+    bottom_at, bottom_stride = _row_target(bands, chunk, reach, b, row1, stored, plane, width, margins)
+    if scatter & 1:
         for c in range(channels):
-            _scatter_flat(grads_rows, image + c * plane, width, row0, row1, column, column1, fx, fy, alpha * g_total_s[chunk, c, p])
-    if scatter_velocity != 0:
-        _scatter_flat(grads_rows, image + channels * plane, width, row0, row1, column, column1, fx, fy, g_v_yx)
-        _scatter_flat(grads_rows, image + (channels + 1) * plane, width, row0, row1, column, column1, fx, fy, g_v_yy)
-    if scatter_depth != 0:
-        _scatter_flat(grads_rows, image + (channels + 2) * plane, width, row0, row1, column, column1, fx, fy, g_z_y)
+            _scatter_rows(grads_rows, top_at + c * top_stride, bottom_at + c * bottom_stride, column, column1, fx, fy, alpha * g_total_s[chunk, c, p])
+    if scatter & 2:
+        _scatter_rows(grads_rows, top_at + channels * top_stride, bottom_at + channels * bottom_stride, column, column1, fx, fy, g_v_yx)
+        _scatter_rows(grads_rows, top_at + (channels + 1) * top_stride, bottom_at + (channels + 1) * bottom_stride, column, column1, fx, fy, g_v_yy)
+    if scatter & 4:
+        _scatter_rows(grads_rows, top_at + (channels + 2) * top_stride, bottom_at + (channels + 2) * bottom_stride, column, column1, fx, fy, g_z_y)
 
 
 @_jit
 def _reconstruct_backward(
     pairs, color_flat, velocity_flat, depth_flat, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, rows, order,
-    scatter_color, scatter_velocity, scatter_depth, out, weight, grad_out, grads, grads_rows, grad_neighbors,
+    scatter_color, scatter_velocity, scatter_depth, bands, reach, out, weight, grad_out, grads, grads_rows, margins, grad_neighbors,
     jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, g_total_s, out_s,
     column_s, row_s, t_s, fx_s, fy_s, inside_x_s, inside_y_s, g_alpha_s, slope_x_s, slope_y_s, alpha_s, g_v_yx_s, g_v_yy_s, g_z_y_s,
     g_speed_x_s, g_z_x_s, g_vx_s, g_vy_s, g_length_x_s, g_nx_s, g_ny_s, g_speed_n_s, value_s,
 ):
     """The forward's layout (blocks of one row as vectors, scratch arguments) for the hand-written
     backward, for the inputs whose scatter_* flag is 1 (ints: see the note above on aliases); the
-    other inputs' gradients come out incomplete. grad_neighbors: (chunks, B, 2, TH, TW) zeros;
-    *_s scratch: (chunks, >= _BLOCK), g_total_s and out_s (chunks, C, >= _BLOCK).
+    other inputs' gradients come out incomplete. A chunk is the rows order[bands[chunk]:bands[chunk
+    + 1]]. grad_neighbors: (chunks, B, 2, TH, TW) zeros, or (1, B, 2, TH, TW) for shifted rows (a
+    band owns its tile rows); *_s scratch: (chunks, >= _BLOCK), g_total_s and out_s (chunks, C,
+    >= _BLOCK).
 
     rows = 0, per pixel (pairs): per tap index k one vector loop places the taps, one per channel
     reads the colours, one runs the classifiers' derivatives; then a scalar loop scatters the
     gradients of the 4 pixels each tap read (lanes may collide, so it cannot be a vector scatter)
     into grads, (chunks, B, H, W, C + 3) zeros, one buffer per chunk of rows (C, V, Z gradients
     interleaved). rows = 1, shifted rows (*_flat): the same loops per run of tiles on contiguous
-    reads, and the scatter as one contiguous vector pass per row read (`_add_shifted`) into grads_rows, the flat
-    (chunks, B, C + 3, H, W) zeros."""
+    reads, and the scatter as one contiguous vector pass per row read (`_add_row`) into grads_rows,
+    a flat buffer that the kernel zeroes: the (B, C + 3, H, W) output, each band's own rows, then
+    from index `margins` on the bands' margins, (chunks, C + 3, 2 reach, W) (`_row_target`)."""
     batch, channels, height, width = color.shape
     stored = channels + 3
     plane = height * width
     jitter_batch = jitter.shape[0]
     inverse_extent = _real(1.0, extent) / extent
-    chunks = grad_neighbors.shape[0]
-    image_rows = batch * height
+    chunks = bands.shape[0] - 1
     last_x = width - 1.0
     last_y = height - 1.0
+    scatter = scatter_color + 2 * scatter_velocity + 4 * scatter_depth
     for chunk in numba.prange(chunks):
-        for i in range(chunk * image_rows // chunks, (chunk + 1) * image_rows // chunks):
+        slot = np.int64(chunk) % grad_neighbors.shape[0]  # shifted rows: one shared buffer, a band owns its tile rows
+        if rows != 0:  # a band's own rows of the output and its margins start at zero
+            b = bands[chunk] // height
+            for k in range(stored):
+                first = (b * stored + k) * plane + (bands[chunk] - b * height) * width
+                for i in range(first, first + (bands[chunk + 1] - bands[chunk]) * width):
+                    grads_rows[i] = 0.0
+            for i in range(margins + chunk * stored * 2 * reach * width, margins + (chunk + 1) * stored * 2 * reach * width):
+                grads_rows[i] = 0.0
+        for i in range(bands[chunk], bands[chunk + 1]):
             row = order[i]
             b = row // height
             y = row % height
@@ -648,21 +684,30 @@ def _reconstruct_backward(
                                 g_nx_s[chunk, u] += g_fx * t_r  # an interior tap: its x is not clamped
                                 g_ny_s[chunk, u] += g_fy * t_r * inside_y_r
                                 g_speed_n_s[chunk, u] += g_distance * along
-                            image = (chunk * batch + b) * stored * plane + top
+                            # + u: pixel u's top-left read in each row, in the array `_row_target` picks
+                            top_at, top_stride = _row_target(bands, chunk, reach, b, row0, stored, plane, width, margins)
+                            bottom_at, bottom_stride = _row_target(bands, chunk, reach, b, row1, stored, plane, width, margins)
+                            top_at += start + shift
+                            bottom_at += start + shift
+                            top_weight = _real(1.0, fy_r) - fy_r
                             if scatter_color != 0:
                                 for c in range(channels):
                                     for u in range(np.uint64(first), np.uint64(last)):
                                         value_s[chunk, u] = alpha_s[chunk, u] * g_total_s[chunk, c, u]
-                                    _add_shifted(grads_rows, np.uint64(image + c * plane), below, fx_r, fy_r, value_s, chunk, first, last)
+                                    _add_row(grads_rows, np.uint64(top_at + c * top_stride), top_weight, fx_r, value_s, chunk, first, last)
+                                    _add_row(grads_rows, np.uint64(bottom_at + c * bottom_stride), fy_r, fx_r, value_s, chunk, first, last)
                             if scatter_velocity != 0:
-                                _add_shifted(grads_rows, np.uint64(image + channels * plane), below, fx_r, fy_r, g_v_yx_s, chunk, first, last)
-                                _add_shifted(grads_rows, np.uint64(image + (channels + 1) * plane), below, fx_r, fy_r, g_v_yy_s, chunk, first, last)
+                                _add_row(grads_rows, np.uint64(top_at + channels * top_stride), top_weight, fx_r, g_v_yx_s, chunk, first, last)
+                                _add_row(grads_rows, np.uint64(bottom_at + channels * bottom_stride), fy_r, fx_r, g_v_yx_s, chunk, first, last)
+                                _add_row(grads_rows, np.uint64(top_at + (channels + 1) * top_stride), top_weight, fx_r, g_v_yy_s, chunk, first, last)
+                                _add_row(grads_rows, np.uint64(bottom_at + (channels + 1) * bottom_stride), fy_r, fx_r, g_v_yy_s, chunk, first, last)
                             if scatter_depth != 0:
-                                _add_shifted(grads_rows, np.uint64(image + (channels + 2) * plane), below, fx_r, fy_r, g_z_y_s, chunk, first, last)
+                                _add_row(grads_rows, np.uint64(top_at + (channels + 2) * top_stride), top_weight, fx_r, g_z_y_s, chunk, first, last)
+                                _add_row(grads_rows, np.uint64(bottom_at + (channels + 2) * bottom_stride), fy_r, fx_r, g_z_y_s, chunk, first, last)
                             for p in range(q, segment_end - start):  # the border, clamped: one by one
                                 if p < first or p >= last:
                                     _border_tap_backward(
-                                        color_flat, velocity_flat, depth_flat, grads_rows, color, b, chunk, p, (start + p) + shift_x, py, t, distance, min_radius, extent, scatter_color, scatter_velocity, scatter_depth,
+                                        color_flat, velocity_flat, depth_flat, grads_rows, margins, bands, reach, color, b, chunk, p, (start + p) + shift_x, py, t, distance, min_radius, extent, scatter,
                                         g_total_s, out_s, z_x_s, speed_x_s, inverse_x_s, g_speed_x_s, g_z_x_s, g_nx_s, g_ny_s, g_speed_n_s,
                                     )
                             segment = segment_end
@@ -767,28 +812,32 @@ def _reconstruct_backward(
                     for p in range(max(tile_x * tile, start) - start, min((tile_x + 1) * tile, end) - start):
                         g_nx += g_nx_s[chunk, p]
                         g_ny += g_ny_s[chunk, p]
-                    grad_neighbors[chunk, b, 0, tile_y, tile_x] += g_nx
-                    grad_neighbors[chunk, b, 1, tile_y, tile_x] += g_ny
+                    grad_neighbors[slot, b, 0, tile_y, tile_x] += g_nx
+                    grad_neighbors[slot, b, 1, tile_y, tile_x] += g_ny
                 start = end
 
 
 @_jit
-def _sum_planar_chunks(grads_rows, out, first, stored):
-    """Sum channels [first, first + K) of the flat (chunks, B, stored, H, W) per-chunk gradient
-    buffers into out (B, K, H, W)."""
-    batch, channels, height, width = out.shape
-    plane = height * width
-    chunks = grads_rows.shape[0] // (batch * stored * plane)
-    for row in numba.prange(batch * channels * height):
-        b = row // (channels * height)
-        c = (row // height) % channels
-        y = row % height
-        start = (b * stored + first + c) * plane + y * width
-        for x in range(width):
-            total = 0.0
-            for chunk in range(chunks):
-                total += grads_rows[chunk * batch * stored * plane + start + x]
-            out[b, c, y, x] = total
+def _add_margins(grads, buffer, margins, bands, reach):
+    """Add the shifted-row backward's band margins (flat (bands, stored, 2 reach, W) from index
+    `margins` of `buffer` on: the rows above
+    and below each band that its taps read) into grads (B, stored, H, W), which holds the bands'
+    own rows; one image plane per iteration, so no two iterations add to one element."""
+    batch, stored, height, width = grads.shape
+    for plane in numba.prange(batch * stored):
+        b = plane // stored
+        k = plane % stored
+        for chunk in range(bands.shape[0] - 1):
+            if bands[chunk] // height != b:
+                continue
+            first_row = bands[chunk] - b * height
+            end_row = bands[chunk + 1] - b * height
+            at = (chunk * stored + k) * 2 * reach
+            for m in range(2 * reach):
+                y = first_row - reach + m if m < reach else end_row + m - reach
+                if 0 <= y < height:
+                    for x in range(width):
+                        grads[b, k, y, x] += buffer[margins + (at + m) * width + x]
 
 
 class ReconstructForwardScratch(NamedTuple):
@@ -943,9 +992,9 @@ def reconstruct_backward(
         target = next(targets) if need and targets is not None else None
         grads.append(_summed(buffers, color, first, count, target) if need else None)
     if need_velocity and targets is not None:
-        grad_neighbors = np.sum(grad_neighbors, axis=0, out=next(targets))
-    elif need_velocity:
-        grad_neighbors = grad_neighbors.sum(axis=0)
+        target = next(targets)
+        np.copyto(target, grad_neighbors)
+        grad_neighbors = target
     return (*grads, grad_neighbors if need_velocity else None)
 
 
@@ -972,41 +1021,81 @@ def reconstruct_backward_stacked(
     The PyTorch operator returns this array whole and slices it, as an operator's outputs may not
     be views of one another."""
     buffers, grad_neighbors = _backward_chunks(color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out, tile, soft_z_extent, min_radius, own_odd, needs)
-    return _summed(buffers, color, 0, color.shape[1] + 3), grad_neighbors.sum(axis=0) if needs[1] else None
+    return _summed(buffers, color, 0, color.shape[1] + 3), grad_neighbors if needs[1] else None
+
+
+#: Bands per thread of the shifted-row backward: the threads take the bands as they come free, so a
+#: scene whose motion sits in one part of the image still keeps every core busy.
+_BANDS_PER_THREAD = 4
+
+
+def _bands(neighbors: np.ndarray, height: int, tile: int, threads: int) -> tuple[np.ndarray, int]:
+    """The shifted-row backward's bands, as the flat (b * H + y) row where each starts (and the
+    end): runs of whole tile rows of one image, so that a band owns its tiles' NeighborMax
+    gradients; and their reach, the rows beyond a band that its taps read (|NeighborMax_y| and one
+    for the bilinear read)."""
+    batch, _, tiles_y, _ = neighbors.shape
+    per_image = max(1, min(tiles_y, -(-_BANDS_PER_THREAD * threads // batch)))
+    tile_rows = np.minimum(np.arange(per_image + 1) * tiles_y // per_image * tile, height)
+    starts = (np.arange(batch)[:, None] * height + tile_rows[None, :-1]).reshape(-1)
+    bands = np.append(starts, batch * height).astype(np.int64)
+    largest = float(np.abs(neighbors[:, 1]).max()) if neighbors.size else 0.0
+    return bands, min(int(math.ceil(largest)) + 2, height)
 
 
 def _backward_chunks(color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out, tile, soft_z_extent, min_radius, own_odd, needs):
-    """Run `_reconstruct_backward`: its per-chunk gradient buffers (for `_summed`) and NeighborMax's
-    per-chunk gradients (chunks, B, 2, TH, TW)."""
+    """Run `_reconstruct_backward`: its gradient buffers (for `_summed`) and NeighborMax's
+    gradient (B, 2, TH, TW). Shifted rows: one (B, C + 3, H, W) buffer, each band's own rows
+    written in place, the rows its taps read beyond them added after; per pixel: one interleaved
+    buffer per thread, summed by `_summed`."""
     color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out = read_only(color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out)
     batch, channels, height, width = color.shape
-    chunks = min(_threads(), batch * height)
     rows = shifted_rows(jitter, tile, own_odd)
     stored = channels + 3
+    threads = _threads()
     if rows:
+        bands, reach = _bands(neighbors, height, tile, threads)
+        chunks = len(bands) - 1
         grads = np.zeros((chunks, 0, 0, 0, stored), dtype=color.dtype)
-        grads_rows = np.zeros(chunks * batch * stored * height * width, dtype=color.dtype)
+        margins = batch * stored * height * width  # the margins' first index in the buffer
+        buffer = np.empty(margins + chunks * stored * 2 * reach * width, dtype=color.dtype)  # zeroed by the kernel, band by band
+        grad_neighbors = np.zeros((1, *neighbors.shape), dtype=color.dtype)
+        order = np.arange(batch * height, dtype=np.int64)
     else:
+        chunks = min(threads, batch * height)
+        bands, reach = np.arange(chunks + 1, dtype=np.int64) * (batch * height) // chunks, 0
         grads = np.zeros((chunks, batch, height, width, stored), dtype=color.dtype)
-        grads_rows = np.zeros(0, dtype=color.dtype)
-    grad_neighbors = np.zeros((chunks, *neighbors.shape), dtype=color.dtype)
+        buffer, margins = np.zeros(0, dtype=color.dtype), 0
+        grad_neighbors = np.zeros((chunks, *neighbors.shape), dtype=color.dtype)
+        order = row_order(batch * height)
     need_color, need_velocity, need_depth = (bool(need) for need in needs)
     real = color.dtype.type  # the kernels compute in the images' precision
-    settings = (int(tile), real(soft_z_extent), real(min_radius), int(own_odd), int(rows), row_order(batch * height), int(need_color), int(need_velocity), int(need_depth))
+    settings = (int(tile), real(soft_z_extent), real(min_radius), int(own_odd), int(rows), order, int(need_color), int(need_velocity), int(need_depth), bands, reach)
     scratch = scratch_for(ReconstructBackwardScratch, chunks, channels, color.dtype)
     pairs = _no_pairs(color) if rows else _pairs(color, velocity, depth)
     arrays = (pairs, color.reshape(-1), velocity.reshape(-1), depth.reshape(-1), color, velocity, depth, neighbors, counts, jitter)
-    _reconstruct_backward(*arrays, *settings, out, weight, grad_out, grads, grads_rows, grad_neighbors, *scratch)
-    return (grads, grads_rows, rows, stored), grad_neighbors
+    previous = numba.set_parallel_chunksize(1)  # the threads take the bands as they come free
+    try:
+        _reconstruct_backward(*arrays, *settings, out, weight, grad_out, grads, buffer, margins, grad_neighbors, *scratch)
+    finally:
+        numba.set_parallel_chunksize(previous)
+    grads_rows = buffer[:margins].reshape(batch, stored, height, width) if rows else None
+    if rows:
+        _add_margins(grads_rows, buffer, margins, bands, reach)
+    return (grads, grads_rows, rows), grad_neighbors.sum(axis=0)
 
 
 def _summed(buffers, color: np.ndarray, first: int, count: int, into: np.ndarray | None = None) -> np.ndarray:
-    """Channels [first, first + count) of `_backward_chunks`' buffers summed over the chunks, into
-    `into` (B, count, H, W, C-contiguous) or a new array."""
-    grads, grads_rows, rows, stored = buffers
-    total = into if into is not None else np.empty((color.shape[0], count, *color.shape[2:]), dtype=color.dtype)
+    """Channels [first, first + count) of `_backward_chunks`' buffers (B, count, H, W): the shifted
+    rows' buffer's own channels (a view, or copied into `into`), or the per-thread buffers summed
+    (into `into` or a new array)."""
+    grads, grads_rows, rows = buffers
     if rows:
-        _sum_planar_chunks(grads_rows, total, first, stored)
-    else:
-        _deinterleave_sum(grads, total, first)
+        channels = grads_rows[:, first : first + count]
+        if into is None:
+            return np.ascontiguousarray(channels)
+        np.copyto(into, channels)
+        return into
+    total = into if into is not None else np.empty((color.shape[0], count, *color.shape[2:]), dtype=color.dtype)
+    _deinterleave_sum(grads, total, first)
     return total
