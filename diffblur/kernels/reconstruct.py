@@ -302,7 +302,7 @@ def _block_state(velocity, depth, neighbors, jitter, b, jb, y, start, end, tile,
             ny_s[chunk, p] = ny
             speed_n_s[chunk, p] = speed_n
     for p in range(end - start):  # vectorized
-        x = start + p
+        x = np.uint64(start + p)  # unsigned: no negative-index wraparound, whose select blocks the vector loads
         jitter_s[chunk, p] = jitter[jb, 0, y, x]
         vx = np.float64(velocity[b, 0, y, x])
         vy = np.float64(velocity[b, 1, y, x])
@@ -346,7 +346,7 @@ def _reconstruct_forward(
                 size = end - start
                 count = counts[b, y // tile, start // tile]
                 if count == 0:  # the early-out: the image
-                    for x in range(start, end):
+                    for x in range(np.uint64(start), np.uint64(end)):
                         for c in range(channels):
                             out[b, c, y, x] = color[b, c, y, x]
                         weight[b, y, x] = 0.0
@@ -357,7 +357,7 @@ def _reconstruct_forward(
                     weight_s[chunk, p] = _real(1.0, weight_s) / speed_x_s[chunk, p]
                 for c in range(channels):
                     for p in range(size):  # vectorized
-                        total_s[chunk, c, p] = weight_s[chunk, p] * color[b, c, y, start + p]
+                        total_s[chunk, c, p] = weight_s[chunk, p] * color[b, c, y, np.uint64(start + p)]
                 middle = (count - 1) // 2
                 step = 2.0 / (count + 1.0)
                 for k in range(count):
@@ -431,9 +431,9 @@ def _reconstruct_forward(
                             total_s[chunk, c, p] += alpha_s[chunk, p] * read
                 for c in range(channels):
                     for p in range(size):  # vectorized
-                        out[b, c, y, start + p] = total_s[chunk, c, p] / weight_s[chunk, p]
+                        out[b, c, y, np.uint64(start + p)] = total_s[chunk, c, p] / weight_s[chunk, p]
                 for p in range(size):
-                    weight[b, y, start + p] = weight_s[chunk, p]
+                    weight[b, y, np.uint64(start + p)] = weight_s[chunk, p]
                 start = end
 
 
@@ -444,9 +444,9 @@ def _add_gradient(grads, grads_rows, rows, chunk, b, y, x, k, value, batch, stor
     (B, stored, H, W) `grads_rows` when rows = 1 (the pixel's row is its band's own), into chunk
     `chunk`'s interleaved `grads` else."""
     if rows != 0:
-        grads_rows[(b * stored + k) * plane + y * width + x] += value
+        grads_rows[np.uint64((b * stored + k) * plane + y * width + x)] += value  # unsigned: see _block_state
     else:
-        grads[chunk, b, y, x, k] += value
+        grads[chunk, b, y, np.uint64(x), k] += value
 
 
 @_inline
@@ -600,7 +600,7 @@ def _reconstruct_backward(
                 if count == 0:  # the early-out: out = C[X]
                     for x in range(start, end):
                         for c in range(channels):
-                            _add_gradient(grads, grads_rows, rows, chunk, b, y, x, c, grad_out[b, c, y, x], batch, stored, plane, width)
+                            _add_gradient(grads, grads_rows, rows, chunk, b, y, x, c, grad_out[b, c, y, np.uint64(x)], batch, stored, plane, width)
                     start = end
                     continue
                 _block_state(velocity, depth, neighbors, jitter, b, jb, y, start, end, tile, min_radius, chunk, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s)
@@ -612,10 +612,11 @@ def _reconstruct_backward(
                 for c in range(channels):
                     for p in range(size):  # vectorized
                         x = start + p
-                        g_total = grad_out[b, c, y, x] / weight[b, y, x]
+                        ux = np.uint64(x)  # unsigned: see _block_state
+                        g_total = grad_out[b, c, y, ux] / weight[b, y, ux]
                         g_total_s[chunk, c, p] = g_total
-                        out_s[chunk, c, p] = out[b, c, y, x]
-                        g_speed_x_s[chunk, p] += g_total * (color[b, c, y, x] - out[b, c, y, x])
+                        out_s[chunk, c, p] = out[b, c, y, ux]
+                        g_speed_x_s[chunk, p] += g_total * (color[b, c, y, ux] - out[b, c, y, ux])
                         _add_gradient(grads, grads_rows, rows, chunk, b, y, x, c, g_total / speed_x_s[chunk, p], batch, stored, plane, width)
                 for p in range(size):  # vectorized
                     speed_x = speed_x_s[chunk, p]
