@@ -109,8 +109,10 @@ def _gather_forward(pairs, velocity, counts, masses, tile, order, out, vx_s, vy_
                     start = end
                     continue
                 for p in range(size):
-                    vx_s[chunk, p] = velocity[b, 0, y, start + p]
-                    vy_s[chunk, p] = velocity[b, 1, y, start + p]
+                    # Unsigned column indices: a signed start + p carries numba's negative-index wraparound,
+                    # a select in front of each load that blocks the vector loads.
+                    vx_s[chunk, p] = velocity[b, 0, y, np.uint64(start + p)]
+                    vy_s[chunk, p] = velocity[b, 1, y, np.uint64(start + p)]
                     for c in range(channels):
                         total_s[chunk, c, p] = 0.0
                 for k in range(count):
@@ -128,7 +130,7 @@ def _gather_forward(pairs, velocity, counts, masses, tile, order, out, vx_s, vy_
                             total_s[chunk, c, p] += mass * read
                 for p in range(size):
                     for c in range(channels):
-                        out[b, c, y, start + p] = total_s[chunk, c, p]
+                        out[b, c, y, np.uint64(start + p)] = total_s[chunk, c, p]
                 start = end
 
 
@@ -162,7 +164,7 @@ def _gather_backward(
                 size = end - start
                 count = counts[b, y // tile, start // tile]
                 if count == 0:  # out = C[X]
-                    for x in range(start, end):
+                    for x in range(np.uint64(start), np.uint64(end)):
                         if scatter_color != 0:
                             for c in range(channels):
                                 grads[chunk, b, y, x, c] += grad_out[b, c, y, x]
@@ -171,12 +173,12 @@ def _gather_backward(
                     start = end
                     continue
                 for p in range(size):
-                    vx_s[chunk, p] = velocity[b, 0, y, start + p]
-                    vy_s[chunk, p] = velocity[b, 1, y, start + p]
+                    vx_s[chunk, p] = velocity[b, 0, y, np.uint64(start + p)]
+                    vy_s[chunk, p] = velocity[b, 1, y, np.uint64(start + p)]
                     g_vx_s[chunk, p] = 0.0
                     g_vy_s[chunk, p] = 0.0
                     for c in range(channels):
-                        g_s[chunk, c, p] = grad_out[b, c, y, start + p]
+                        g_s[chunk, c, p] = grad_out[b, c, y, np.uint64(start + p)]
                 for k in range(count):
                     t = (2.0 * k + 1.0) / count - 1.0
                     mass = np.float64(masses[count, k])
@@ -217,8 +219,8 @@ def _gather_backward(
                             for c in range(channels):
                                 _scatter_chunk(grads, chunk, b, c, row0, row1, column, column1, fx_s[chunk, p], fy_s[chunk, p], g_s[chunk, c, p] * mass)
                 for p in range(size):
-                    grad_velocity[b, 0, y, start + p] = g_vx_s[chunk, p]
-                    grad_velocity[b, 1, y, start + p] = g_vy_s[chunk, p]
+                    grad_velocity[b, 0, y, np.uint64(start + p)] = g_vx_s[chunk, p]
+                    grad_velocity[b, 1, y, np.uint64(start + p)] = g_vy_s[chunk, p]
                 start = end
         grad_masses[chunk] = g_masses
 
