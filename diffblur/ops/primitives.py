@@ -135,11 +135,16 @@ def tile_max(be: Any, velocity: Any, tile: int) -> Any:
     # Padding gets squared length -1 so it never wins, not even against a zero vector.
     squared = be.pad(squared_length(be, velocity, 1)[:, 0], ((0, 0), (0, pad_y), (0, pad_x)), value=-1.0)
     padded = be.pad(velocity, ((0, 0), (0, 0), (0, pad_y), (0, pad_x)))
-    squared = be.permute(squared.reshape(batch, tiles_y, tile, tiles_x, tile), (0, 1, 3, 2, 4))
-    padded = be.permute(padded.reshape(batch, 2, tiles_y, tile, tiles_x, tile), (0, 1, 2, 4, 3, 5))
-    squared = squared.reshape(batch, tiles_y, tiles_x, tile * tile)
-    padded = padded.reshape(batch, 2, tiles_y, tiles_x, tile * tile)
-    return _largest(be, padded, squared, axis=4)
+    squared = be.stop_gradient(squared).reshape(batch, tiles_y, tile, tiles_x, tile)
+    padded = padded.reshape(batch, 2, tiles_y, tile, tiles_x, tile)
+    # In two steps, with no transposed copy of the image: each tile row's first largest, then the
+    # first row that holds the tile's largest. That is the first largest in row-major order, the
+    # tie rule of an argmax over the tile's pixels.
+    column = be.argmax(squared, 4)  # (B, TY, tile, TX, 1)
+    row = be.argmax(be.take_along(squared, column, 4), 2)  # (B, TY, 1, TX, 1)
+    column = be.take_along(column, row, 2)
+    largest_row = be.take_along(padded, row[:, None], 3)  # (B, 2, TY, 1, TX, tile)
+    return be.take_along(largest_row, column[:, None], 5)[:, :, :, 0, :, 0]
 
 
 def neighbor_max(be: Any, tile_velocity: Any) -> Any:
