@@ -165,7 +165,11 @@ def _cylinder_grad(distance, speed, inverse, grad):
 def _tap_alpha(z_x, z_y, v_yx, v_yy, distance, inverse_x, min_radius, extent, inverse_extent):
     """A tap's weight from Z[X], the values read at Y and the tap's distance: the three classifiers."""
     length_y = math.sqrt(v_yx * v_yx + v_yy * v_yy)
-    inverse_y = _floored_inverse(length_y if length_y >= min_radius else min_radius)
+    speed_y = length_y if length_y >= min_radius else min_radius
+    # `_floored_inverse` with EPSILON in the speed's precision (the same comparison for every float32
+    # speed: float32(EPSILON) is the first float32 above it), which LLVM schedules better here, not in the backward.
+    floor = _real(EPSILON, speed_y)
+    inverse_y = _real(1.0, speed_y) / (speed_y if speed_y >= floor else floor)
     return (
         _soft_depth_compare(z_x, z_y, extent, inverse_extent) * _cone(distance, inverse_y)
         + _soft_depth_compare(z_y, z_x, extent, inverse_extent) * _cone(distance, inverse_x)
