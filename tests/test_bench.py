@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 
 from diffblur.app import bench
@@ -77,6 +78,29 @@ def test_timed_calls_take_turns():
     times = median_ms_each([lambda: calls.append("forward"), lambda: calls.append("backward")], repeats=3, warmup=1)
     assert calls == ["forward", "backward"] * 4
     assert len(times) == 2 and all(t >= 0 for t in times)
+
+
+def test_the_targets_settings_take_turns_in_one_loop():
+    """The targets pass times every setting's forward and forward+backward in one round-robin
+    (kornia's and reconstruct's calls alternate), so their ratios see the same machine speed."""
+    from types import SimpleNamespace
+
+    calls = []
+    target = np.zeros((1, 3, 8, 8))
+
+    class Runner:
+        def prepare(self, setting, x):
+            return dict(output=target, forward=lambda: calls.append((setting.method, "forward")), backward=lambda: calls.append((setting.method, "backward")))
+
+    settings = [bench.Setting(method, "label", None, (), ()) for method in ("reconstruct", "kornia.motion_blur")]
+    bar = SimpleNamespace(set_postfix_str=lambda text: None, update=lambda: None)
+    buffers = SimpleNamespace(name="uniform", target=target)
+    rows = bench._measure_in_turns({"torch": Runner()}, [(s, "torch") for s in settings], buffers, {}, "8x8", 2, bar)
+    one_round = [("reconstruct", "forward"), ("reconstruct", "backward"), ("kornia.motion_blur", "forward"), ("kornia.motion_blur", "backward")]
+    # a warm-up round, two timed rounds, then one forward+backward each for the peak memory
+    assert calls[:12] == one_round * 3
+    assert [(r.method, r.backend) for r in rows] == [("reconstruct", "torch"), ("kornia.motion_blur", "torch")]
+    assert all(r.forward_ms >= 0 and r.backward_ms >= 0 for r in rows)
 
 
 def test_a_new_run_keeps_the_other_commands_sections(quick, tmp_path):

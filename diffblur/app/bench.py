@@ -16,7 +16,8 @@ horizontal camera pan: the scene kornia's single-kernel blur models exactly), ru
 
 Peers run in the same sweep: `kornia.filters.motion_blur` (on "uniform", kernel sizes 9/31/61,
 bilinear mode, backward w.r.t. the image and its angle) and the accumulation at 1, 2, 4, ... instants.
-A "targets" pass runs the design's performance targets at 1280x720 on the uniform scene.
+A "targets" pass runs the design's performance targets at 1280x720 on the uniform scene, every
+setting's forward and fwd+bwd taking turns in one loop (the targets are ratios between settings).
 
 The results go to `docs/benchmarks.json` (machine-readable), `BENCHMARKS.md` (a table per scene,
 with the machine, versions, date and load) and `docs/pareto.png` (PSNR against forward time).
@@ -270,6 +271,10 @@ class _TorchRunner:
         self.torch, self.ops, self.kornia = torch, torch_impl, kornia
 
     def measure(self, setting: Setting, x: dict[str, np.ndarray], repeats: int) -> dict:
+        return _timed(self.prepare(setting, x), repeats)
+
+    def prepare(self, setting: Setting, x: dict[str, np.ndarray]) -> dict:
+        """The setting's forward and forward+backward calls, ready to time, and its output."""
         torch = self.torch
         ops = self.kornia if setting.method.startswith("kornia") else self.ops
         tensors = {k: torch.from_numpy(v) for k, v in x.items()}
@@ -286,14 +291,7 @@ class _TorchRunner:
             out = setting.call(ops, leaves)
             out.sum().backward()
 
-        output = forward().numpy()
-        forward_ms, backward_ms = median_ms_each([forward, backward], repeats)
-        return dict(
-            output=output,
-            forward_ms=forward_ms,
-            backward_ms=backward_ms,
-            peak_mb=_peak_rss_mb(backward),
-        )
+        return dict(output=forward().numpy(), forward=forward, backward=backward)
 
 
 class _JaxRunner:
@@ -321,6 +319,11 @@ class _JaxRunner:
         return self.compiled[key]
 
     def measure(self, setting: Setting, x: dict[str, np.ndarray], repeats: int) -> dict:
+        return _timed(self.prepare(setting, x), repeats)
+
+    def prepare(self, setting: Setting, x: dict[str, np.ndarray]) -> dict:
+        """The setting's compiled forward and forward+backward calls, ready to time, its output and
+        compile figures."""
         jax, jnp = self.jax, self.jnp
         arrays = {k: jnp.asarray(v) for k, v in x.items()}
         grads = {k: v for k, v in arrays.items() if k in setting.grad}
@@ -336,17 +339,23 @@ class _JaxRunner:
         key = (setting.method, setting.label, shapes)
         fwd, _, fwd_compile = self._compile(key + ("forward",), forward_fn, arrays)
         bwd, temp, bwd_compile = self._compile(key + ("backward",), jax.value_and_grad(loss), grads, rest)
-        output = np.asarray(jax.block_until_ready(fwd(arrays)))
-        forward_ms, backward_ms = median_ms_each([lambda: jax.block_until_ready(fwd(arrays)), lambda: jax.block_until_ready(bwd(grads, rest))], repeats)
         return dict(
-            output=output,
-            forward_ms=forward_ms,
-            backward_ms=backward_ms,
-            peak_mb=_peak_rss_mb(lambda: jax.block_until_ready(bwd(grads, rest))),
+            output=np.asarray(jax.block_until_ready(fwd(arrays))),
+            forward=lambda: jax.block_until_ready(fwd(arrays)),
+            backward=lambda: jax.block_until_ready(bwd(grads, rest)),
             compile_s=fwd_compile,
             compile_backward_s=bwd_compile,
             xla_temp_mb=temp,
         )
+
+
+def _timed(prepared: dict, repeats: int) -> dict:
+    """A runner's prepared calls timed in turn (forward, forward+backward), with the peak memory of
+    one forward+backward: the fields of a `Row`, and the output."""
+    forward, backward = prepared.pop("forward"), prepared.pop("backward")
+    prepared["forward_ms"], prepared["backward_ms"] = median_ms_each([forward, backward], repeats)
+    prepared["peak_mb"] = _peak_rss_mb(backward)
+    return prepared
 
 
 # ---------------------------------------------------------------------------------------------
@@ -535,7 +544,7 @@ def _run(quick, height, width, scenes, backends, repeats, targets, target_repeat
         if target_scene is not None:
             buffers, x = target_scene
             size = f"{target_width}x{target_height}"
-            target_rows = [_measure(runners, s, b, buffers, x, size, target_repeats, bar) for s, b in jobs_for("uniform", x, TARGET_SETTINGS)]
+            target_rows = _measure_in_turns(runners, jobs_for("uniform", x, TARGET_SETTINGS), buffers, x, size, target_repeats, bar)
 
     results = {
         "machine": _machine(load_before),
@@ -567,8 +576,33 @@ def _preset(name, height, width):
 def _measure(runners, setting: Setting, backend: str, buffers, x, size, repeats, bar) -> Row:
     bar.set_postfix_str(f"{buffers.name} {size}: {setting.method} {setting.label} [{backend}]")
     m = runners[backend].measure(setting, {k: x[k] for k in setting.inputs}, repeats)
-    output = m.pop("output").astype(np.float64)
     bar.update()
+    return _row(setting, backend, buffers, size, m)
+
+
+def _measure_in_turns(runners, jobs, buffers, x, size, repeats, bar) -> list[Row]:
+    """`_measure` for settings compared with each other (the targets pass): every job's forward and
+    forward+backward take turns in one loop, so that the ratios between settings (reconstruct
+    against kornia) are not those of a machine's speed minutes apart."""
+    prepared = []
+    for setting, backend in jobs:
+        bar.set_postfix_str(f"{buffers.name} {size}: preparing {setting.method} {setting.label} [{backend}]")
+        prepared.append(runners[backend].prepare(setting, {k: x[k] for k in setting.inputs}))
+    calls = [call for m in prepared for call in (m.pop("forward"), m.pop("backward"))]
+    bar.set_postfix_str(f"{buffers.name} {size}: {len(jobs)} settings in turns, {repeats} rounds")
+    times = median_ms_each(calls, repeats)
+    rows = []
+    for i, ((setting, backend), m) in enumerate(zip(jobs, prepared)):
+        bar.set_postfix_str(f"{buffers.name} {size}: peak memory of {setting.method} {setting.label} [{backend}]")
+        m["forward_ms"], m["backward_ms"] = times[2 * i], times[2 * i + 1]
+        m["peak_mb"] = _peak_rss_mb(calls[2 * i + 1])
+        rows.append(_row(setting, backend, buffers, size, m))
+        bar.update()
+    return rows
+
+
+def _row(setting: Setting, backend: str, buffers, size: str, m: dict) -> Row:
+    output = m.pop("output").astype(np.float64)
     return Row(
         buffers.name,
         size,
@@ -693,7 +727,7 @@ def _markdown(results: dict) -> str:
             "Paths: `reconstruct` by default (`jitter=\"noise\"`) reads each pixel's taps on their own; with `jitter=\"none\"` (the \"no jitter\" rows)"
             " it reads each tile's taps as shifted rows (docs/fused.md). `bezier_scatter` runs its default `composite=\"instants\"`: its splats on the fused kernel, each instant's composite by tensor ops (docs/defaults.md)."
         )
-        out += [f"## Targets ({size}, uniform scene, float32, median of {results['target_repeats']} runs)", "", paths, ""] + _target_lines(results["targets"]) + [""]
+        out += [f"## Targets ({size}, uniform scene, float32, median of {results['target_repeats']} runs, every setting's forward and fwd+bwd in turns in one loop)", "", paths, ""] + _target_lines(results["targets"]) + [""]
         out += _table(results["targets"]) + [""]
     scenes = list(dict.fromkeys(r["scene"] for r in results["rows"]))
     for name in scenes:
