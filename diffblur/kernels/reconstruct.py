@@ -487,6 +487,13 @@ def _add_row(target, at, row_weight, fx, value_s, chunk, first, last):
 
 
 @_inline
+def _add_rows(grads_rows, top_at, bottom_at, fx, fy, value_s, chunk, first, last):
+    """`_add_row` for both rows a tap reads, weighted 1 - fy and fy."""
+    _add_row(grads_rows, np.uint64(top_at), _real(1.0, fy) - fy, fx, value_s, chunk, first, last)
+    _add_row(grads_rows, np.uint64(bottom_at), fy, fx, value_s, chunk, first, last)
+
+
+@_inline
 def _scatter_rows(grads_rows, top_at, bottom_at, column0, column1, fx, fy, grad):
     """`_scatter_chunk` into two rows of the flat buffer, the top row's first pixel at index top_at,
     the bottom row's at bottom_at (`_row_target`'s)."""
@@ -583,13 +590,13 @@ def _reconstruct_backward(
     for chunk in numba.prange(chunks):
         slot = np.int64(chunk) % grad_neighbors.shape[0]  # shifted rows: one shared buffer, a band owns its tile rows
         if rows != 0:  # a band's own rows of the output and its margins start at zero
-            b = bands[chunk] // height
-            for k in range(stored):
-                first = (b * stored + k) * plane + (bands[chunk] - b * height) * width
-                for i in range(first, first + (bands[chunk + 1] - bands[chunk]) * width):
-                    grads_rows[i] = 0.0
-            for i in range(margins + chunk * stored * 2 * reach * width, margins + (chunk + 1) * stored * 2 * reach * width):
-                grads_rows[i] = 0.0
+            image = bands[chunk] // height
+            for channel in range(stored):
+                own = (image * stored + channel) * plane + (bands[chunk] - image * height) * width
+                for index in range(own, own + (bands[chunk + 1] - bands[chunk]) * width):
+                    grads_rows[index] = 0.0
+            for index in range(margins + chunk * stored * 2 * reach * width, margins + (chunk + 1) * stored * 2 * reach * width):
+                grads_rows[index] = 0.0
         for i in range(bands[chunk], bands[chunk + 1]):
             row = order[i]
             b = row // height
@@ -689,26 +696,21 @@ def _reconstruct_backward(
                                 g_nx_s[chunk, u] += g_fx * t_r  # an interior tap: its x is not clamped
                                 g_ny_s[chunk, u] += g_fy * t_r * inside_y_r
                                 g_speed_n_s[chunk, u] += g_distance * along
-                            # + u: pixel u's top-left read in each row, in the array `_row_target` picks
+                            # + u: pixel u's top-left read in each row, at the index `_row_target` gives
                             top_at, top_stride = _row_target(bands, chunk, reach, b, row0, stored, plane, width, margins)
                             bottom_at, bottom_stride = _row_target(bands, chunk, reach, b, row1, stored, plane, width, margins)
                             top_at += start + shift
                             bottom_at += start + shift
-                            top_weight = _real(1.0, fy_r) - fy_r
                             if scatter_color != 0:
                                 for c in range(channels):
                                     for u in range(np.uint64(first), np.uint64(last)):
                                         value_s[chunk, u] = alpha_s[chunk, u] * g_total_s[chunk, c, u]
-                                    _add_row(grads_rows, np.uint64(top_at + c * top_stride), top_weight, fx_r, value_s, chunk, first, last)
-                                    _add_row(grads_rows, np.uint64(bottom_at + c * bottom_stride), fy_r, fx_r, value_s, chunk, first, last)
+                                    _add_rows(grads_rows, top_at + c * top_stride, bottom_at + c * bottom_stride, fx_r, fy_r, value_s, chunk, first, last)
                             if scatter_velocity != 0:
-                                _add_row(grads_rows, np.uint64(top_at + channels * top_stride), top_weight, fx_r, g_v_yx_s, chunk, first, last)
-                                _add_row(grads_rows, np.uint64(bottom_at + channels * bottom_stride), fy_r, fx_r, g_v_yx_s, chunk, first, last)
-                                _add_row(grads_rows, np.uint64(top_at + (channels + 1) * top_stride), top_weight, fx_r, g_v_yy_s, chunk, first, last)
-                                _add_row(grads_rows, np.uint64(bottom_at + (channels + 1) * bottom_stride), fy_r, fx_r, g_v_yy_s, chunk, first, last)
+                                _add_rows(grads_rows, top_at + channels * top_stride, bottom_at + channels * bottom_stride, fx_r, fy_r, g_v_yx_s, chunk, first, last)
+                                _add_rows(grads_rows, top_at + (channels + 1) * top_stride, bottom_at + (channels + 1) * bottom_stride, fx_r, fy_r, g_v_yy_s, chunk, first, last)
                             if scatter_depth != 0:
-                                _add_row(grads_rows, np.uint64(top_at + (channels + 2) * top_stride), top_weight, fx_r, g_z_y_s, chunk, first, last)
-                                _add_row(grads_rows, np.uint64(bottom_at + (channels + 2) * bottom_stride), fy_r, fx_r, g_z_y_s, chunk, first, last)
+                                _add_rows(grads_rows, top_at + (channels + 2) * top_stride, bottom_at + (channels + 2) * bottom_stride, fx_r, fy_r, g_z_y_s, chunk, first, last)
                             for p in range(q, segment_end - start):  # the border, clamped: one by one
                                 if p < first or p >= last:
                                     _border_tap_backward(
@@ -824,10 +826,10 @@ def _reconstruct_backward(
 
 @_jit
 def _add_margins(grads, buffer, margins, bands, reach):
-    """Add the shifted-row backward's band margins (flat (bands, stored, 2 reach, W) from index
-    `margins` of `buffer` on: the rows above
-    and below each band that its taps read) into grads (B, stored, H, W), which holds the bands'
-    own rows; one image plane per iteration, so no two iterations add to one element."""
+    """Add the shifted-row backward's band margins (the rows above and below each band that its
+    taps read: flat (bands, stored, 2 reach, W) from index `margins` of `buffer` on) into grads
+    (B, stored, H, W), which holds the bands' own rows; one image plane per iteration, so no two
+    iterations add to one element."""
     batch, stored, height, width = grads.shape
     for plane in numba.prange(batch * stored):
         b = plane // stored
