@@ -56,6 +56,7 @@ def test_quick_bench_writes_its_files(quick):
     markdown = (out / "BENCHMARKS.md").read_text()
     assert "## Scene `uniform` (16x16)" in markdown
     assert results["machine"]["cpu"] in markdown
+    assert f"OMP_WAIT_POLICY '{results['machine']['omp_wait_policy']}'" in markdown  # the timings' thread environment
     for row in results["rows"]:
         assert f"| {row['setting']} | {row['backend']} |" in markdown
 

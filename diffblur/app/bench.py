@@ -401,6 +401,9 @@ def _machine(load_before: tuple[float, float, float]) -> dict:
         "load_after": list(os.getloadavg()),
         "device": "cpu",
         "xla_flags": os.environ.get("XLA_FLAGS", ""),
+        # Whether PyTorch's OpenMP threads spin between ops, competing with the fused kernels'
+        # threads on few cores (docs/fused.md).
+        "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY", ""),
     }
 
 
@@ -706,7 +709,7 @@ def _markdown(results: dict) -> str:
         "",
         f"- date: {m['date']}",
         *([f"- {results['note']}"] if results.get("note") else []),
-        f"- machine: {m['cpu']}, {m['cores']} cores visible, torch threads {m['torch_threads']}, numba threads (fused kernels) {m.get('numba_threads')}, XLA_FLAGS '{m.get('xla_flags', '')}', {m['device']}; {m['platform']}",
+        f"- machine: {m['cpu']}, {m['cores']} cores visible, torch threads {m['torch_threads']}, numba threads (fused kernels) {m.get('numba_threads')}, XLA_FLAGS '{m.get('xla_flags', '')}', OMP_WAIT_POLICY '{m.get('omp_wait_policy', '')}', {m['device']}; {m['platform']}",
         f"- versions: {versions}",
         f"- load average (1, 5, 15 min) before: {', '.join(f'{v:.2f}' for v in m['load_before'])}; after: {', '.join(f'{v:.2f}' for v in m['load_after'])}",
         f"- timings: median of {results['repeats']} runs after one warm-up, forward and fwd+bwd runs taking turns, float32, one image; PyTorch eager (forward under no_grad), "
