@@ -25,7 +25,13 @@ behind, how the per-scene targets are met; "default": fill="still"):
 On a set drawn from seed 20261206 (used for nothing else; `scripts/mitsuba_untuned.py`'s
 variants, 64x64): moving box +1.60 / +1.86 (default), +1.13 / +0.82 (background); propeller -0.07
 / +0.01, +0.29 / +0.21; crossing -0.24 / +0.01, +0.66 / +0.54. The crossing with the default fill
-loses (-0.40 dB at 128x128): open before this becomes the library's. Nothing here was tuned.
+loses (-0.40 dB at 128x128): there the far ball's checker texture blurs to a mean that one texel,
+its own colour, misses. Open before this becomes the library's. Nothing here was tuned.
+
+Tried in its place: gather_blur's colour (the texture blurred along the motion) instead of the
+pixel's own. Better on the tuned scenes with the scene behind (moving box 38.46, crossing 38.78,
+propeller 43.52), worse on the seed-20261206 set (moving box 38.07 / 37.86 against 38.83 / 38.85
+with its own colour), the crossing's default fill still below today (35.44): not the better rule.
 """
 
 from __future__ import annotations
