@@ -32,7 +32,7 @@ from diffblur import checks, conventions
 from diffblur.conventions import DEPTH_CHANNELS, VECTOR_CHANNELS
 from diffblur.ops._options import OpOptions, impl_option, takes_kernel
 from diffblur.ops.primitives import soft_depth_compare
-from diffblur.ops.sampling import pixel_grid, position_dtype
+from diffblur.ops.sampling import pixel_grid, position_dtype, sample
 from diffblur.ops.taps import stratum_weights
 from diffblur.shutters import ShutterWindow, get_shutter
 
@@ -101,7 +101,10 @@ DEFAULT_FILL = "still"
 #: with bilinear weight above NEAREST_SPLAT_WEIGHT; on a still pixel only where seed 003's depth
 #: test against it passes, the still pixel being the layer behind), the other splats in the part of
 #: the pixel those leave, then what passes behind the pixel over the exposure (the behind splats of
-#: "layers") over the fill; the instants summed by the shutter's masses. With fill="still"
+#: "layers") over the fill, unless the pixel's object goes on there behind a nearer surface: where
+#: the point of its own path at -t (the point that reaches the pixel at t) lies more than the depth
+#: band behind the sharp frame's surface there, the pixel shows its own colour (`_going_on_behind`);
+#: the instants summed by the shutter's masses. With fill="still"
 #: in an image without a still pixel (a moving camera), each instant's uncovered pixels take a
 #: push-pull of that instant's own picture, its pixels weighted by coverage x (depth / farthest
 #: depth)^UNCOVERED_DEPTH_POWER: what an instant uncovers lies behind what surrounds it.
@@ -449,7 +452,11 @@ DOC = """Scatter every moving pixel's colour along its curved path over the expo
             pixel, the layer behind, only those that pass seed 003's depth test against it), the
             part of the pixel they leave shows the others up to their coverage, and the rest what
             passes behind the pixel over the exposure (the behind splats of "layers") over the fill
-            (a still pixel: itself); the instants are summed by the shutter's masses.
+            (a still pixel: itself); but where the point of the pixel's own path at -t (the one
+            that reaches it at t) lies more than the depth band behind a nearer surface of the
+            sharp frame, its object goes on behind that surface and the pixel shows its own colour
+            (by the soft depth compare, the depth read bilinearly); the instants are summed by the
+            shutter's masses.
             Where fill="still" finds no still pixel in an image (a moving camera), an instant's
             uncovered pixels take a push-pull of that instant's own picture, its pixels weighted by
             coverage x (depth / farthest depth)^3: what a moving camera uncovers lies behind what
@@ -791,24 +798,26 @@ def _instants(
     start = be.zeros((batch, channels, height, width), wide, color)
     if fused:
 
-        def fused_instant(chunk_times: Any, chunk_masses: Any, terms: tuple, moving: Any, color: Any, log: Any, depth: Any, extent: Any, behind: Any, no_still: Any) -> Any:
+        def fused_instant(chunk_times: Any, chunk_masses: Any, terms: tuple, x: Any, y: Any, moving: Any, color: Any, log: Any, depth: Any, extent: Any, behind: Any, no_still: Any) -> Any:
             sums = be.run_kernel("instants", color, log, depth, kind, terms, chunk_times, extent, moving)
-            return _instant_pictures(be, sums, chunk_masses, behind, no_still)
+            going_on = _going_on_behind(be, kind, chunk_times, terms, x, y, moving, depth, extent)
+            return _instant_pictures(be, sums, chunk_masses, behind, no_still, going_on, color)
 
-        fixed = (terms, moving, be.astype(color, wide), be.astype(log, wide), be.astype(depth, wide), extent, behind, no_still)
+        fixed = (terms, x[None], y[None], moving, be.astype(color, wide), be.astype(log, wide), be.astype(depth, wide), extent, behind, no_still)
         return be.astype(be.sum_chunks(fused_instant, times, masses, chunk, fixed, start), color.dtype)
     # Rows of [color, 1, log depth] per source pixel: one scatter-add sums colour, coverage and the
     # depth that the uncovered fill weighs.
     rows = be.astype(be.permute(be.concat([color, xp.ones_like(depth), log], 1), (0, 2, 3, 1)).reshape(-1, channels + 2), wide)
 
-    def instant(chunk_times: Any, chunk_masses: Any, terms: tuple, x: Any, y: Any, moving: Any, rows: Any, depth: Any, destinations: Any, extent: Any, behind: Any, no_still: Any) -> Any:
+    def instant(chunk_times: Any, chunk_masses: Any, terms: tuple, x: Any, y: Any, moving: Any, rows: Any, color: Any, depth: Any, destinations: Any, extent: Any, behind: Any, no_still: Any) -> Any:
         sums = _instant_sums(be, kind, chunk_times, terms, x, y, moving, rows, depth, destinations, extent)
-        return _instant_pictures(be, sums, chunk_masses, behind, no_still)
+        going_on = _going_on_behind(be, kind, chunk_times, terms, x, y, moving, be.astype(depth, wide), extent)
+        return _instant_pictures(be, sums, chunk_masses, behind, no_still, going_on, color)
 
     # Each destination's depth and whether it is still, on the padded images, flat: (B (H + 2) (W + 2), 2).
     destinations = be.pad(be.concat([be.astype(depth, wide), be.astype(xp.logical_not(moving)[:, None], wide)], 1), ((0, 0), (0, 0), (1, 1), (1, 1)), mode="edge")
     destinations = be.permute(destinations, (0, 2, 3, 1)).reshape(-1, 2)
-    fixed = (terms, x[None], y[None], moving, rows, depth, destinations, extent, behind, no_still)
+    fixed = (terms, x[None], y[None], moving, rows, be.astype(color, wide), depth, destinations, extent, behind, no_still)
     return be.astype(be.sum_chunks(instant, times, masses, chunk, fixed, start), color.dtype)
 
 
@@ -841,10 +850,28 @@ def _instant_sums(be: Any, kind: str, times: Any, terms: tuple, x: Any, y: Any, 
     return be.permute(sums, (0, 1, 4, 2, 3))
 
 
-def _instant_pictures(be: Any, sums: Any, masses: Any, behind: Any, no_still: Any) -> Any:
+def _going_on_behind(be: Any, kind: str, times: Any, terms: tuple, x: Any, y: Any, moving: Any, depth: Any, extent: Any) -> Any:
+    """(K, B, 1, H, W): at each of `times`, how far the surface point that a moving pixel X shows,
+    X + p(-t) (the point of X's own path at -t, as `accumulate_warps` reads), lies behind a nearer
+    surface in the sharp frame: 1 - the soft depth compare of X's depth against the depth there
+    (bilinear), i.e. X's depth more than the band behind it. There X's object goes on behind that
+    surface (it was hidden at t = 0), so what X uncovers is its own object, not the scene behind.
+    0 where X is still or the depth there is level with X's or farther (an edge of its object)."""
+    xp = be.xp
+    px, py = curve_position(kind, terms, x, y, -times.reshape(-1, 1, 1, 1), xp)
+    count, batch, height, width = px.shape
+    # sample() reads (B, H', W') positions: the instants stacked along the rows.
+    flat = lambda v: be.permute(v, (1, 0, 2, 3)).reshape(batch, count * height, width)  # noqa: E731
+    there = be.permute(sample(be, depth, flat(px), flat(py), "bilinear").reshape(batch, 1, count, height, width), (2, 0, 1, 3, 4))
+    nearer = 1.0 - soft_depth_compare(be, there, depth[None], extent)
+    return xp.where(moving[None, :, None], nearer, 0.0)
+
+
+def _instant_pictures(be: Any, sums: Any, masses: Any, behind: Any, no_still: Any, going_on: Any, color: Any) -> Any:
     """The sum over the instants of masses (K,) x what the camera sees at each, from their sums
     (K, B, 2 C + 3, H, W) (`_instant_sums`): the nearest layer's splats, beside the others, over
-    `behind` (a still pixel: itself)."""
+    `behind` (a still pixel: itself), which gives way to the pixel's own colour by `going_on`
+    (`_going_on_behind`)."""
     xp = be.xp
     channels = (sums.shape[2] - 3) // 2
     splatted, alpha, log_sum = sums[:, :, :channels], sums[:, :, channels : channels + 1], sums[:, :, channels + 1 : channels + 2]
@@ -852,6 +879,7 @@ def _instant_pictures(be: Any, sums: Any, masses: Any, behind: Any, no_still: An
     behind = behind[None]
     if no_still is not None:
         behind = xp.where(no_still[None, :, None, None, None], _uncovered(be, splatted, alpha, log_sum, behind), behind)
+    behind = behind + going_on * (color[None] - behind)
     pictures = _beside(be, splatted, alpha, hidden, hidden_alpha, behind)
     return (masses.reshape(-1, 1, 1, 1, 1) * pictures).sum(0)
 

@@ -94,6 +94,19 @@ def _bilinear_splat(x: float, y: float, height: int, width: int) -> list[tuple[i
     return [(r, c, w) for r, c, w in corners if 0 <= r < height and 0 <= c < width]
 
 
+def _bilinear_read(image: np.ndarray, x: float, y: float) -> float:
+    """image (H, W) at x, y (pixels, centres at integers) by bilinear interpolation, positions beyond
+    the border clamped to it."""
+    height, width = image.shape
+    x, y = min(max(x, 0.0), width - 1.0), min(max(y, 0.0), height - 1.0)
+    j, i = int(math.floor(x)), int(math.floor(y))
+    fx, fy = x - j, y - i
+    j1, i1 = min(j + 1, width - 1), min(i + 1, height - 1)
+    top = image[i, j] + fx * (image[i, j1] - image[i, j])
+    bottom = image[i1, j] + fx * (image[i1, j1] - image[i1, j])
+    return top + fy * (bottom - top)
+
+
 def _soft_in_front(z_destination: float, z_source: float, extent: float) -> float:
     """Seed 000's softDepthCompare(z_a = destination, z_b = source) for positive depth."""
     return min(max(1.0 - (z_source - z_destination) / extent, 0.0), 1.0)
@@ -324,7 +337,9 @@ def _instants(color, depth, log_depths, curve, times, masses, extent, behind, un
     coverage, then `behind`; over 1, A / alpha; the instants summed by their masses. `unknown` (fill="still"):
     in an image without a still pixel each instant's uncovered part is `still_fill` of its own
     picture (A / alpha) weighted by min(alpha, 1) (depth / farthest depth)^UNCOVERED_DEPTH_POWER
-    over the pixels with alpha >= 1/2, instead of `behind`."""
+    over the pixels with alpha >= 1/2, instead of `behind`. Either gives way, on a moving pixel X,
+    to X's colour by 1 - softDepthCompare(z at X + p(-t) read bilinearly, z[X]): X's object going
+    on behind a nearer surface."""
     batch, channels, height, width = color.shape
     out = np.zeros_like(color)
     curves = [[[curve(b, i, j) for j in range(width)] for i in range(height)] for b in range(batch)]
@@ -357,7 +372,16 @@ def _instants(color, depth, log_depths, curve, times, masses, extent, behind, un
                 log_sum[0, row, column] += omega * log_depths[b, 0, i, j]
                 hidden[:, row, column] += (weight - omega) * color[b, :, i, j]
                 hidden_alpha[0, row, column] += weight - omega
-            uncovered = _uncovered(accumulated, alpha, log_sum, behind[b]) if no_still else behind[b]
+            uncovered = _uncovered(accumulated, alpha, log_sum, behind[b]) if no_still else behind[b].copy()
+            # a moving pixel X whose own path at -t, X + p(-t), lies behind a nearer surface in the
+            # sharp frame: its object goes on behind that surface, so X uncovers its own colour
+            for i in range(height):
+                for j in range(width):
+                    is_moving, position, _ = curves[b][i][j]
+                    if is_moving:
+                        x, y = position(-t)
+                        nearer = 1.0 - _soft_in_front(_bilinear_read(depth[b, 0], x, y), depth[b, 0, i, j], extent)
+                        uncovered[:, i, j] += nearer * (color[b, :, i, j] - uncovered[:, i, j])
             # the part of a pixel the nearest layer leaves shows the other splats up to their
             # coverage, then what is uncovered
             gap = np.maximum(1.0 - alpha, 0.0)
