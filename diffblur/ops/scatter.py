@@ -863,6 +863,7 @@ def _going_on_behind(be: Any, kind: str, times: Any, terms: tuple, x: Any, y: An
     # sample() reads (B, H', W') positions: the instants stacked along the rows.
     flat = lambda v: be.permute(v, (1, 0, 2, 3)).reshape(batch, count * height, width)  # noqa: E731
     there = be.permute(sample(be, depth, flat(px), flat(py), "bilinear").reshape(batch, 1, count, height, width), (2, 0, 1, 3, 4))
+    extent = be.astype(extent, there.dtype) if be.is_array(extent) else extent
     nearer = 1.0 - soft_depth_compare(be, there, depth[None], extent)
     return xp.where(moving[None, :, None], nearer, 0.0)
 
