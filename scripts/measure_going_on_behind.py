@@ -4,11 +4,11 @@ float32, box shutter, with the default fill and with the scene behind as the fil
 the rule (a monkeypatch), so the two columns differ in that rule alone.
 
     PYTHONPATH=. python scripts/measure_going_on_behind.py --sets tuned,presets --size 128
-    PYTHONPATH=. python scripts/measure_going_on_behind.py --sets 20261207 --variants 3
+    PYTHONPATH=. python scripts/measure_going_on_behind.py --sets 20261208 --variants 3 --size 128
 
-A set is "tuned" (the four Mitsuba scenes at --size), "presets" (the 2.5D presets, seed 0, at
---size) or a seed, which draws `scripts/mitsuba_untuned.py`'s variants of the Mitsuba scenes with
-it (64x64). Measured numbers: docs/defaults.md, "The scatter's compositing".
+A set is "tuned" (the four Mitsuba scenes), "presets" (the 2.5D presets, seed 0) or a seed, which
+draws `scripts/mitsuba_untuned.py`'s variants of the Mitsuba scenes with it; every set at --size.
+Measured numbers: docs/defaults.md, "The scatter's compositing".
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def _scenes(name: str, size: int, variants: int):
     sys.path.insert(0, os.path.dirname(__file__))
     from mitsuba_untuned import untuned_scenes
 
-    return {f"Mitsuba {n}": b for n, b in untuned_scenes(64, variants, seed=int(name)).items()}
+    return {f"Mitsuba {n}": b for n, b in untuned_scenes(size, variants, seed=int(name)).items()}
 
 
 def main() -> None:

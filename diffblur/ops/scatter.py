@@ -796,28 +796,29 @@ def _instants(
     share = INSTANT_SHARE_FUSED if fused else INSTANT_SHARE_TENSOR
     chunk = max(1, CHUNK_PIXEL_POINTS // (share * batch * (height + 2) * (width + 2)))
     start = be.zeros((batch, channels, height, width), wide, color)
+    own = _own_surface(be, kind, times, masses, terms, x[None], y[None], be.astype(color, wide), be.astype(depth, wide), extent, chunk)
     if fused:
 
-        def fused_instant(chunk_times: Any, chunk_masses: Any, terms: tuple, x: Any, y: Any, moving: Any, color: Any, log: Any, depth: Any, extent: Any, behind: Any, no_still: Any) -> Any:
+        def fused_instant(chunk_times: Any, chunk_masses: Any, terms: tuple, x: Any, y: Any, moving: Any, color: Any, log: Any, depth: Any, extent: Any, behind: Any, no_still: Any, own: Any) -> Any:
             sums = be.run_kernel("instants", color, log, depth, kind, terms, chunk_times, extent, moving)
             going_on = _going_on_behind(be, kind, chunk_times, terms, x, y, moving, depth, extent)
-            return _instant_pictures(be, sums, chunk_masses, behind, no_still, going_on, color)
+            return _instant_pictures(be, sums, chunk_masses, behind, no_still, going_on, own)
 
-        fixed = (terms, x[None], y[None], moving, be.astype(color, wide), be.astype(log, wide), be.astype(depth, wide), extent, behind, no_still)
+        fixed = (terms, x[None], y[None], moving, be.astype(color, wide), be.astype(log, wide), be.astype(depth, wide), extent, behind, no_still, own)
         return be.astype(be.sum_chunks(fused_instant, times, masses, chunk, fixed, start), color.dtype)
     # Rows of [color, 1, log depth] per source pixel: one scatter-add sums colour, coverage and the
     # depth that the uncovered fill weighs.
     rows = be.astype(be.permute(be.concat([color, xp.ones_like(depth), log], 1), (0, 2, 3, 1)).reshape(-1, channels + 2), wide)
 
-    def instant(chunk_times: Any, chunk_masses: Any, terms: tuple, x: Any, y: Any, moving: Any, rows: Any, color: Any, depth: Any, destinations: Any, extent: Any, behind: Any, no_still: Any) -> Any:
+    def instant(chunk_times: Any, chunk_masses: Any, terms: tuple, x: Any, y: Any, moving: Any, rows: Any, depth: Any, destinations: Any, extent: Any, behind: Any, no_still: Any, own: Any) -> Any:
         sums = _instant_sums(be, kind, chunk_times, terms, x, y, moving, rows, depth, destinations, extent)
         going_on = _going_on_behind(be, kind, chunk_times, terms, x, y, moving, be.astype(depth, wide), extent)
-        return _instant_pictures(be, sums, chunk_masses, behind, no_still, going_on, color)
+        return _instant_pictures(be, sums, chunk_masses, behind, no_still, going_on, own)
 
     # Each destination's depth and whether it is still, on the padded images, flat: (B (H + 2) (W + 2), 2).
     destinations = be.pad(be.concat([be.astype(depth, wide), be.astype(xp.logical_not(moving)[:, None], wide)], 1), ((0, 0), (0, 0), (1, 1), (1, 1)), mode="edge")
     destinations = be.permute(destinations, (0, 2, 3, 1)).reshape(-1, 2)
-    fixed = (terms, x[None], y[None], moving, rows, be.astype(color, wide), depth, destinations, extent, behind, no_still)
+    fixed = (terms, x[None], y[None], moving, rows, depth, destinations, extent, behind, no_still, own)
     return be.astype(be.sum_chunks(instant, times, masses, chunk, fixed, start), color.dtype)
 
 
@@ -850,29 +851,65 @@ def _instant_sums(be: Any, kind: str, times: Any, terms: tuple, x: Any, y: Any, 
     return be.permute(sums, (0, 1, 4, 2, 3))
 
 
-def _going_on_behind(be: Any, kind: str, times: Any, terms: tuple, x: Any, y: Any, moving: Any, depth: Any, extent: Any) -> Any:
-    """(K, B, 1, H, W): at each of `times`, how far the surface point that a moving pixel X shows,
-    X + p(-t) (the point of X's own path at -t, as `accumulate_warps` reads), lies behind a nearer
-    surface in the sharp frame: 1 - the soft depth compare of X's depth against the depth there
-    (bilinear), i.e. X's depth more than the band behind it. There X's object goes on behind that
-    surface (it was hidden at t = 0), so what X uncovers is its own object, not the scene behind.
-    0 where X is still or the depth there is level with X's or farther (an edge of its object)."""
-    xp = be.xp
-    px, py = curve_position(kind, terms, x, y, -times.reshape(-1, 1, 1, 1), xp)
+def _on_path(be: Any, kind: str, times: Any, terms: tuple, x: Any, y: Any, image: Any) -> tuple[Any, Any]:
+    """image (B, C, H, W) read bilinearly at X + p(-t) for each pixel X and each of `times` (K,):
+    (K, B, C, H, W), and whether that point lies in the image, within half a pixel of its border
+    pixels' centres, (K, B, 1, H, W) booleans (beyond it the border is read, which says nothing of
+    what is there). X + p(-t), the point of X's own
+    path at -t, is where the point that reaches X at t was at t = 0 (neighbouring points move
+    alike; the point `accumulate_warps` reads)."""
+    px, py = curve_position(kind, terms, x, y, -times.reshape(-1, 1, 1, 1), be.xp)
     count, batch, height, width = px.shape
     # sample() reads (B, H', W') positions: the instants stacked along the rows.
     flat = lambda v: be.permute(v, (1, 0, 2, 3)).reshape(batch, count * height, width)  # noqa: E731
-    there = be.permute(sample(be, depth, flat(px), flat(py), "bilinear").reshape(batch, 1, count, height, width), (2, 0, 1, 3, 4))
+    read = sample(be, image, flat(px), flat(py), "bilinear")
+    inside = (px >= -0.5) & (px <= width - 0.5) & (py >= -0.5) & (py <= height - 0.5)
+    return be.permute(read.reshape(batch, image.shape[1], count, height, width), (2, 0, 1, 3, 4)), inside[:, :, None]
+
+
+def _going_on_behind(be: Any, kind: str, times: Any, terms: tuple, x: Any, y: Any, moving: Any, depth: Any, extent: Any) -> Any:
+    """(K, B, 1, H, W): at each of `times`, how far the point that reaches a moving pixel X then
+    (`_on_path`) lay behind a nearer surface of the sharp frame: 1 - the soft depth compare of X's
+    depth against the depth there, i.e. X's depth more than the band behind it. There X's object
+    goes on behind that surface (it was hidden at t = 0), so what X uncovers is its own object, not
+    the scene behind. 0 where X is still or the depth there is level with X's or farther (an edge
+    of its object), or lies outside the image."""
+    there, inside = _on_path(be, kind, times, terms, x, y, depth)
     extent = be.astype(extent, there.dtype) if be.is_array(extent) else extent
     nearer = 1.0 - soft_depth_compare(be, there, depth[None], extent)
-    return xp.where(moving[None, :, None], nearer, 0.0)
+    return be.xp.where(moving[None, :, None] & inside, nearer, 0.0)
 
 
-def _instant_pictures(be: Any, sums: Any, masses: Any, behind: Any, no_still: Any, going_on: Any, color: Any) -> Any:
+def _own_surface(be: Any, kind: str, times: Any, masses: Any, terms: tuple, x: Any, y: Any, color: Any, depth: Any, extent: Any, chunk: int) -> Any:
+    """(B, C, H, W): what each pixel's own object looks like where the sharp frame hides it, the
+    colour it shows where it goes on behind a nearer surface (`_going_on_behind`): the mean, by the
+    shutter's masses, of the colours along the pixel's path (`_on_path`, every point time) that lie
+    on its own surface (depth level with its own both ways, by the soft depth compare) within the
+    image; its own colour where none does. A mean of the texture it carries along, as the exposure averages the
+    hidden texels; one texel would keep a fine texture's contrast. Summed in chunks of `chunk`
+    point times (`Backend.sum_chunks`, O(pixels) memory)."""
+    xp = be.xp
+    extent = be.astype(extent, depth.dtype) if be.is_array(extent) else extent
+
+    def along(chunk_times: Any, chunk_masses: Any, terms: tuple, x: Any, y: Any, color: Any, depth: Any) -> Any:
+        there, inside = _on_path(be, kind, chunk_times, terms, x, y, be.concat([color, depth], 1))
+        colors, z = there[:, :, :-1], there[:, :, -1:]
+        level = xp.where(inside, soft_depth_compare(be, depth[None], z, extent) * soft_depth_compare(be, z, depth[None], extent), 0.0)
+        weight = chunk_masses.reshape(-1, 1, 1, 1, 1) * level
+        return be.concat([(weight * colors).sum(0), weight.sum(0)], 1)
+
+    batch, channels, height, width = color.shape
+    start = be.zeros((batch, channels + 1, height, width), color.dtype, color)
+    sums = be.sum_chunks(along, times, masses, chunk, (terms, x, y, color, depth), start)
+    total, mass = sums[:, :channels], sums[:, channels:]
+    return xp.where(mass > 0, total / xp.where(mass > 0, mass, 1.0), color)
+
+
+def _instant_pictures(be: Any, sums: Any, masses: Any, behind: Any, no_still: Any, going_on: Any, own: Any) -> Any:
     """The sum over the instants of masses (K,) x what the camera sees at each, from their sums
     (K, B, 2 C + 3, H, W) (`_instant_sums`): the nearest layer's splats, beside the others, over
-    `behind` (a still pixel: itself), which gives way to the pixel's own colour by `going_on`
-    (`_going_on_behind`)."""
+    `behind` (a still pixel: itself), which gives way to `own` (B, C, H, W), the pixel's own object
+    (`_own_surface`), by `going_on` (`_going_on_behind`)."""
     xp = be.xp
     channels = (sums.shape[2] - 3) // 2
     splatted, alpha, log_sum = sums[:, :, :channels], sums[:, :, channels : channels + 1], sums[:, :, channels + 1 : channels + 2]
@@ -880,7 +917,7 @@ def _instant_pictures(be: Any, sums: Any, masses: Any, behind: Any, no_still: An
     behind = behind[None]
     if no_still is not None:
         behind = xp.where(no_still[None, :, None, None, None], _uncovered(be, splatted, alpha, log_sum, behind), behind)
-    behind = behind + going_on * (color[None] - behind)
+    behind = behind + going_on * (own[None] - behind)
     pictures = _beside(be, splatted, alpha, hidden, hidden_alpha, behind)
     return (masses.reshape(-1, 1, 1, 1, 1) * pictures).sum(0)
 

@@ -94,6 +94,11 @@ def _bilinear_splat(x: float, y: float, height: int, width: int) -> list[tuple[i
     return [(r, c, w) for r, c, w in corners if 0 <= r < height and 0 <= c < width]
 
 
+def _inside(x: float, y: float, height: int, width: int) -> bool:
+    """Whether (x, y) lies within the image's pixels (half a pixel around the border centres)."""
+    return -0.5 <= x <= width - 0.5 and -0.5 <= y <= height - 0.5
+
+
 def _bilinear_read(image: np.ndarray, x: float, y: float) -> float:
     """image (H, W) at x, y (pixels, centres at integers) by bilinear interpolation, positions beyond
     the border clamped to it."""
@@ -338,11 +343,12 @@ def _instants(color, depth, log_depths, curve, times, masses, extent, behind, un
     in an image without a still pixel each instant's uncovered part is `still_fill` of its own
     picture (A / alpha) weighted by min(alpha, 1) (depth / farthest depth)^UNCOVERED_DEPTH_POWER
     over the pixels with alpha >= 1/2, instead of `behind`. Either gives way, on a moving pixel X,
-    to X's colour by 1 - softDepthCompare(z at X + p(-t) read bilinearly, z[X]): X's object going
-    on behind a nearer surface."""
+    to X's own object (`_own_surface`) by 1 - softDepthCompare(z at X + p(-t) read bilinearly,
+    z[X]): X's object going on behind a nearer surface."""
     batch, channels, height, width = color.shape
     out = np.zeros_like(color)
     curves = [[[curve(b, i, j) for j in range(width)] for i in range(height)] for b in range(batch)]
+    own = _own_surface(color, depth, curves, times, masses, extent)
     for b in range(batch):
         no_still = unknown and all(curves[b][i][j][0] for i in range(height) for j in range(width))
         for t, mass in zip(times, masses):
@@ -374,14 +380,14 @@ def _instants(color, depth, log_depths, curve, times, masses, extent, behind, un
                 hidden_alpha[0, row, column] += weight - omega
             uncovered = _uncovered(accumulated, alpha, log_sum, behind[b]) if no_still else behind[b].copy()
             # a moving pixel X whose own path at -t, X + p(-t), lies behind a nearer surface in the
-            # sharp frame: its object goes on behind that surface, so X uncovers its own colour
+            # sharp frame: its object goes on behind that surface, so X uncovers its own object
             for i in range(height):
                 for j in range(width):
                     is_moving, position, _ = curves[b][i][j]
-                    if is_moving:
-                        x, y = position(-t)
+                    x, y = position(-t) if is_moving else (-1.0, -1.0)
+                    if _inside(x, y, height, width):
                         nearer = 1.0 - _soft_in_front(_bilinear_read(depth[b, 0], x, y), depth[b, 0, i, j], extent)
-                        uncovered[:, i, j] += nearer * (color[b, :, i, j] - uncovered[:, i, j])
+                        uncovered[:, i, j] += nearer * (own[b, :, i, j] - uncovered[:, i, j])
             # the part of a pixel the nearest layer leaves shows the other splats up to their
             # coverage, then what is uncovered
             gap = np.maximum(1.0 - alpha, 0.0)
@@ -389,6 +395,32 @@ def _instants(color, depth, log_depths, curve, times, masses, extent, behind, un
             beside = np.divide(hidden * shown, hidden_alpha, out=np.zeros_like(hidden), where=hidden_alpha > 0)
             out[b] += mass * (accumulated + beside + (gap - shown) * uncovered) / np.maximum(alpha, 1.0)
     return out
+
+
+def _own_surface(color, depth, curves, times, masses, extent) -> np.ndarray:
+    """Per moving pixel X, the mean by the masses of the colours at X + p(-t) (bilinear), every point
+    time t with X + p(-t) in the image, weighted by how level the depth there is with X's
+    (softDepthCompare both ways); X's colour where that weight is 0."""
+    batch, channels, height, width = color.shape
+    own = color.copy()
+    for b in range(batch):
+        for i in range(height):
+            for j in range(width):
+                is_moving, position, _ = curves[b][i][j]
+                if not is_moving:
+                    continue
+                total, weight = np.zeros(channels), 0.0
+                for t, mass in zip(times, masses):
+                    x, y = position(-t)
+                    if not _inside(x, y, height, width):
+                        continue
+                    z = _bilinear_read(depth[b, 0], x, y)
+                    level = _soft_in_front(depth[b, 0, i, j], z, extent) * _soft_in_front(z, depth[b, 0, i, j], extent)
+                    total += mass * level * np.array([_bilinear_read(color[b, c], x, y) for c in range(channels)])
+                    weight += mass * level
+                if weight > 0:
+                    own[b, :, i, j] = total / weight
+    return own
 
 
 def _uncovered(accumulated: np.ndarray, alpha: np.ndarray, log_sum: np.ndarray, behind: np.ndarray) -> np.ndarray:

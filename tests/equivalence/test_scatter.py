@@ -254,23 +254,25 @@ def test_each_instant_shows_the_nearest_point_on_a_pixel(implementation):
 
 @pytest.mark.parametrize("implementation", IMPLEMENTATIONS)
 def test_an_object_goes_on_behind_a_nearer_surface(implementation):
-    """A bar (depth 5, colour 0.6, pixels 5-8 of 12) moves 2 px per unit t behind a still post
-    (depth 1, pixels 3-4), points at t = -1/2 and +1/2; at its other end a still pixel level with
-    it (9, depth 5: a floor it slides on), then a far wall; the fill is 0.2. At t = +1/2 pixel 5 is
-    uncovered; the point that reaches it then, 5 + p(-1/2) = 4, lies behind the post in the sharp
-    frame, so the bar goes on there: 0.6 at both instants, not half the fill. Pixel 8 is uncovered
-    at t = -1/2, and 8 + p(+1/2) = 9 is level with it (the floor, not a nearer surface): the fill
-    for that half, 0.5 x 0.6 + 0.5 x 0.2."""
+    """A bar (depth 5, colours 0.3, 0.5, 0.7, 0.9 at pixels 5-8 of 12) moves 2 px per unit t behind a
+    still post (depth 1, pixels 3-4), points at t = -1/2 and +1/2; at its other end a still pixel
+    level with it (9, depth 5: a floor it slides on), then a far wall; the fill is 0.2. At t = +1/2
+    pixel 5 is uncovered; the point that reaches it then, 5 + p(-1/2) = 4, lies behind the post in
+    the sharp frame, so the bar goes on there and pixel 5 shows the bar as its path sees it: the
+    mean of the colours on its path level with it (pixel 6's 0.5; pixel 4, the post, is not), and
+    at t = -1/2 pixel 6's point covers it: 0.5 for the whole exposure, not half the fill. Pixel 8 is
+    uncovered at t = -1/2, and 8 + p(+1/2) = 9 is level with it (the floor, not a nearer surface):
+    the fill for that half, pixel 7's 0.7 for the other."""
     width = 12
     color = np.full((1, 1, 1, width), 0.2)
     depth = np.full((1, 1, 1, width), 10.0)
     color[..., 3:5], depth[..., 3:5] = 0.9, 1.0
-    color[..., 5:9], depth[..., 5:10] = 0.6, 5.0
+    color[..., 5:9], depth[..., 5:10] = [0.3, 0.5, 0.7, 0.9], 5.0
     bar = {f"0,{j}": (2.0, 0.0) for j in range(5, 9)}
     prev, nxt = vectors(1, width, **{k: (-v[0], 0.0) for k, v in bar.items()}), vectors(1, width, **bar)
     out = scatter(implementation, color, depth, prev, nxt, degree=1, samples=2, shutter="box", fill=np.full_like(color, 0.2))[0, 0, 0]
-    np.testing.assert_allclose(out[5], 0.6, atol=1e-12)
-    np.testing.assert_allclose(out[8], 0.5 * 0.6 + 0.5 * 0.2, atol=1e-12)
+    np.testing.assert_allclose(out[5], 0.5, atol=1e-12)
+    np.testing.assert_allclose(out[8], 0.5 * 0.7 + 0.5 * 0.2, atol=1e-12)
 
 
 @pytest.mark.parametrize("implementation", IMPLEMENTATIONS)
