@@ -24,7 +24,7 @@ EXPECTED_OUTPUT = {
     "speed_accuracy.ipynb": [
         r"\d+ rows from `diffblur bench",
         r"propeller  \| (warp_blend|gather) [^|]* \[(jax|torch)\] \d+\.\d ms",
-        r"reconstruct / gather_blur forward at S=15 on the moving scenes: \d\.\dx to \d\.\dx",
+        r"reconstruct / gather_blur forward at S=15 on the moving scenes, torch: median \d\.\dx \(\d\.\dx to \d+\.\dx\)",
         r"propeller front \(\d+ rows, fastest first\)",
         r"propeller: bezier \d+\.\d\d dB vs gather \d+\.\d\d dB",
         r"wrote BENCHMARKS\.md, docs/benchmarks\.json, docs/pareto\.png",
