@@ -855,9 +855,8 @@ def _on_path(be: Any, kind: str, times: Any, terms: tuple, x: Any, y: Any, image
     """image (B, C, H, W) read bilinearly at X + p(-t) for each pixel X and each of `times` (K,):
     (K, B, C, H, W), and whether that point lies in the image, within half a pixel of its border
     pixels' centres, (K, B, 1, H, W) booleans (beyond it the border is read, which says nothing of
-    what is there). X + p(-t), the point of X's own
-    path at -t, is where the point that reaches X at t was at t = 0 (neighbouring points move
-    alike; the point `accumulate_warps` reads)."""
+    what is there). X + p(-t), the point of X's own path at -t, is where the point that reaches X
+    at t was at t = 0 (neighbouring points move alike; the point `accumulate_warps` reads)."""
     px, py = curve_position(kind, terms, x, y, -times.reshape(-1, 1, 1, 1), be.xp)
     count, batch, height, width = px.shape
     # sample() reads (B, H', W') positions: the instants stacked along the rows.
@@ -885,9 +884,9 @@ def _own_surface(be: Any, kind: str, times: Any, masses: Any, terms: tuple, x: A
     colour it shows where it goes on behind a nearer surface (`_going_on_behind`): the mean, by the
     shutter's masses, of the colours along the pixel's path (`_on_path`, every point time) that lie
     on its own surface (depth level with its own both ways, by the soft depth compare) within the
-    image; its own colour where none does. A mean of the texture it carries along, as the exposure averages the
-    hidden texels; one texel would keep a fine texture's contrast. Summed in chunks of `chunk`
-    point times (`Backend.sum_chunks`, O(pixels) memory)."""
+    image; its own colour where none does. A mean of the texture it carries along, as the exposure
+    averages the hidden texels; one texel would keep a fine texture's contrast. Summed in chunks of
+    `chunk` point times (`Backend.sum_chunks`, O(pixels) memory)."""
     xp = be.xp
     extent = be.astype(extent, depth.dtype) if be.is_array(extent) else extent
 
