@@ -796,7 +796,10 @@ def _instants(
     share = INSTANT_SHARE_FUSED if fused else INSTANT_SHARE_TENSOR
     chunk = max(1, CHUNK_PIXEL_POINTS // (share * batch * (height + 2) * (width + 2)))
     start = be.zeros((batch, channels, height, width), wide, color)
-    own = _own_surface(be, kind, times, masses, terms, x[None], y[None], be.astype(color, wide), be.astype(depth, wide), extent, chunk)
+    depth = be.astype(depth, wide)
+    # Each instant reads the depth on the path again (`_going_on_behind`) rather than keep the reads
+    # of `_own_surface`: K of them per pixel would break the chunks' O(pixels) memory.
+    own = _own_surface(be, kind, times, masses, terms, x[None], y[None], be.astype(color, wide), depth, extent, chunk)
     if fused:
 
         def fused_instant(chunk_times: Any, chunk_masses: Any, terms: tuple, x: Any, y: Any, moving: Any, color: Any, log: Any, depth: Any, extent: Any, behind: Any, no_still: Any, own: Any) -> Any:
@@ -804,19 +807,19 @@ def _instants(
             going_on = _going_on_behind(be, kind, chunk_times, terms, x, y, moving, depth, extent)
             return _instant_pictures(be, sums, chunk_masses, behind, no_still, going_on, own)
 
-        fixed = (terms, x[None], y[None], moving, be.astype(color, wide), be.astype(log, wide), be.astype(depth, wide), extent, behind, no_still, own)
+        fixed = (terms, x[None], y[None], moving, be.astype(color, wide), be.astype(log, wide), depth, extent, behind, no_still, own)
         return be.astype(be.sum_chunks(fused_instant, times, masses, chunk, fixed, start), color.dtype)
     # Rows of [color, 1, log depth] per source pixel: one scatter-add sums colour, coverage and the
     # depth that the uncovered fill weighs.
-    rows = be.astype(be.permute(be.concat([color, xp.ones_like(depth), log], 1), (0, 2, 3, 1)).reshape(-1, channels + 2), wide)
+    rows = be.astype(be.permute(be.concat([color, xp.ones_like(log), log], 1), (0, 2, 3, 1)).reshape(-1, channels + 2), wide)
 
     def instant(chunk_times: Any, chunk_masses: Any, terms: tuple, x: Any, y: Any, moving: Any, rows: Any, depth: Any, destinations: Any, extent: Any, behind: Any, no_still: Any, own: Any) -> Any:
         sums = _instant_sums(be, kind, chunk_times, terms, x, y, moving, rows, depth, destinations, extent)
-        going_on = _going_on_behind(be, kind, chunk_times, terms, x, y, moving, be.astype(depth, wide), extent)
+        going_on = _going_on_behind(be, kind, chunk_times, terms, x, y, moving, depth, extent)
         return _instant_pictures(be, sums, chunk_masses, behind, no_still, going_on, own)
 
     # Each destination's depth and whether it is still, on the padded images, flat: (B (H + 2) (W + 2), 2).
-    destinations = be.pad(be.concat([be.astype(depth, wide), be.astype(xp.logical_not(moving)[:, None], wide)], 1), ((0, 0), (0, 0), (1, 1), (1, 1)), mode="edge")
+    destinations = be.pad(be.concat([depth, be.astype(xp.logical_not(moving)[:, None], wide)], 1), ((0, 0), (0, 0), (1, 1), (1, 1)), mode="edge")
     destinations = be.permute(destinations, (0, 2, 3, 1)).reshape(-1, 2)
     fixed = (terms, x[None], y[None], moving, rows, depth, destinations, extent, behind, no_still, own)
     return be.astype(be.sum_chunks(instant, times, masses, chunk, fixed, start), color.dtype)

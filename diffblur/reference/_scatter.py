@@ -99,19 +99,6 @@ def _inside(x: float, y: float, height: int, width: int) -> bool:
     return -0.5 <= x <= width - 0.5 and -0.5 <= y <= height - 0.5
 
 
-def _bilinear_read(image: np.ndarray, x: float, y: float) -> float:
-    """image (H, W) at x, y (pixels, centres at integers) by bilinear interpolation, positions beyond
-    the border clamped to it."""
-    height, width = image.shape
-    x, y = min(max(x, 0.0), width - 1.0), min(max(y, 0.0), height - 1.0)
-    j, i = int(math.floor(x)), int(math.floor(y))
-    fx, fy = x - j, y - i
-    j1, i1 = min(j + 1, width - 1), min(i + 1, height - 1)
-    top = image[i, j] + fx * (image[i, j1] - image[i, j])
-    bottom = image[i1, j] + fx * (image[i1, j1] - image[i1, j])
-    return top + fy * (bottom - top)
-
-
 def _soft_in_front(z_destination: float, z_source: float, extent: float) -> float:
     """Seed 000's softDepthCompare(z_a = destination, z_b = source) for positive depth."""
     return min(max(1.0 - (z_source - z_destination) / extent, 0.0), 1.0)
@@ -348,6 +335,8 @@ def _instants(color, depth, log_depths, curve, times, masses, extent, behind, un
     batch, channels, height, width = color.shape
     out = np.zeros_like(color)
     curves = [[[curve(b, i, j) for j in range(width)] for i in range(height)] for b in range(batch)]
+    from diffblur.reference import sample_bilinear
+
     own = _own_surface(color, depth, curves, times, masses, extent)
     for b in range(batch):
         no_still = unknown and all(curves[b][i][j][0] for i in range(height) for j in range(width))
@@ -386,7 +375,7 @@ def _instants(color, depth, log_depths, curve, times, masses, extent, behind, un
                     is_moving, position, _ = curves[b][i][j]
                     x, y = position(-t) if is_moving else (-1.0, -1.0)
                     if _inside(x, y, height, width):
-                        nearer = 1.0 - _soft_in_front(_bilinear_read(depth[b, 0], x, y), depth[b, 0, i, j], extent)
+                        nearer = 1.0 - _soft_in_front(sample_bilinear(depth[b], x, y)[0], depth[b, 0, i, j], extent)
                         uncovered[:, i, j] += nearer * (own[b, :, i, j] - uncovered[:, i, j])
             # the part of a pixel the nearest layer leaves shows the other splats up to their
             # coverage, then what is uncovered
@@ -401,6 +390,7 @@ def _own_surface(color, depth, curves, times, masses, extent) -> np.ndarray:
     """Per moving pixel X, the mean by the masses of the colours at X + p(-t) (bilinear), every point
     time t with X + p(-t) in the image, weighted by how level the depth there is with X's
     (softDepthCompare both ways); X's colour where that weight is 0."""
+    from diffblur.reference import sample_bilinear
     batch, channels, height, width = color.shape
     own = color.copy()
     for b in range(batch):
@@ -414,9 +404,9 @@ def _own_surface(color, depth, curves, times, masses, extent) -> np.ndarray:
                     x, y = position(-t)
                     if not _inside(x, y, height, width):
                         continue
-                    z = _bilinear_read(depth[b, 0], x, y)
+                    z = sample_bilinear(depth[b], x, y)[0]
                     level = _soft_in_front(depth[b, 0, i, j], z, extent) * _soft_in_front(z, depth[b, 0, i, j], extent)
-                    total += mass * level * np.array([_bilinear_read(color[b, c], x, y) for c in range(channels)])
+                    total += mass * level * sample_bilinear(color[b], x, y)
                     weight += mass * level
                 if weight > 0:
                     own[b, :, i, j] = total / weight
