@@ -5,7 +5,7 @@ inputs' bytes (colour, velocity and depth: 24,582 numbers, 96 KB).
 The peak is measured as scripts/measure_degenerate_memory.py measures it (every dtype, in
 docs/robustness.md): the resident-set high-water mark above the resting RSS while one forward +
 backward runs (`diffblur.app.bench._peak_rss_mb`), after a warm-up call that fills the compile caches
-and allocator pools. One dtype here (the half types run the same code as float32 with wider
+and allocator pools; here the least of three runs. One dtype here (the half types run the same code as float32 with wider
 positions; tests/torch/test_degenerate_memory.py holds `bezier_scatter`, the op once reported at
 5 GB in bfloat16, in every dtype). Inputs as the script's: velocities up to 40 px in random
 directions with half the pixels still, eager, default options.
@@ -22,8 +22,8 @@ OPS = ("gather_blur", "reconstruct", "bezier_scatter", "warp_blend", "accumulate
 N = 4097
 #: The bound on the peak, in multiples of the inputs' bytes: about twice the largest measured in
 #: float32 (docs/robustness.md, "Memory on degenerate shapes": bezier_scatter's default
-#: composite="instants", which takes its instants in chunks sized by the image here, up to 14.5 MB,
-#: about 150 times the inputs). An op whose memory grew with one side
+#: composite="instants", which takes its instants in chunks sized by the image here, up to 14.9 MB,
+#: about 160 times the inputs). An op whose memory grew with one side
 #: of the image times the other (4097 x 4097), or with the pixels times the taps, would pass it by far.
 PEAK_FACTOR = 256
 
@@ -80,8 +80,12 @@ def test_every_op_peaks_within_a_factor_of_its_inputs(backend, shape):
     for op in OPS:
         run = _forward_backward(backend, op, host)
         run()
-        peaks[op] = _peak_rss_mb(run)
-        if peaks[op] is None:
+        # The least of three: whatever else the process touches meanwhile (allocator pools left by
+        # earlier tests in this worker) only adds to a high-water mark; growth with the aspect
+        # would show in every one.
+        measured = [_peak_rss_mb(run) for _ in range(3)]
+        if None in measured:
             pytest.skip("no /proc/self/clear_refs on this system: the high-water mark cannot be reset")
+        peaks[op] = min(measured)
     over = {op: f"{peak:.1f} MB" for op, peak in peaks.items() if peak > PEAK_FACTOR * input_mb}
     assert not over, f"above {PEAK_FACTOR} x {input_mb:.3f} MB of inputs: {over}"

@@ -497,7 +497,7 @@ CHUNK_PIXEL_POINTS = 1 << 18
 #: composite="instants" takes instants in chunks of CHUNK_PIXEL_POINTS // (share x padded pixels):
 #: the share is in proportion to the numbers an instant keeps per pixel for the backward (`_instants`).
 INSTANT_SHARE_TENSOR = 16
-INSTANT_SHARE_FUSED = 4
+INSTANT_SHARE_FUSED = 5
 
 #: The static arguments of the scatter's core (`_scatter`), which JAX compiles whole.
 CORE_STATIC = ("be", "kind", "degree", "paper", "background_weight", "fill", "composite", "fill_from_instants", "log_depth", "fused")
@@ -789,10 +789,11 @@ def _instants(
     times = be.asarray(point_times(masses.shape[0]), wide, color)
     # Instants per chunk, by the image padded by its ring (three times a line image's pixels): an
     # instant's intermediates, kept for the backward, come to some 200 numbers per padded pixel by
-    # tensor ops (10 MB on 1x4097), some 50 on the fused kernel (its 2 C + 3 sums and the
-    # composite). A chunk of CHUNK_PIXEL_POINTS by those shares keeps the peak O(pixels) and small
-    # (tests/test_degenerate_memory.py); the fused share lets a 96 x 96 image take six instants a
-    # kernel call, not one (fwd + bwd at 16 instants: 206 -> 110 ms PyTorch, 243 -> 111 ms JAX).
+    # tensor ops (10 MB on 1x4097), some 60 on the fused kernel (its 2 C + 3 sums, the composite
+    # and the depth read on the path, `_going_on_behind`). A chunk of CHUNK_PIXEL_POINTS by those
+    # shares keeps the peak O(pixels) and small (tests/test_degenerate_memory.py; with the depth
+    # read, line images peaked at up to 17.8 MB at share 4, 14.9 at 5: docs/robustness.md); the fused share lets a 128 x 128
+    # image take three instants a kernel call, not one.
     share = INSTANT_SHARE_FUSED if fused else INSTANT_SHARE_TENSOR
     chunk = max(1, CHUNK_PIXEL_POINTS // (share * batch * (height + 2) * (width + 2)))
     start = be.zeros((batch, channels, height, width), wide, color)
