@@ -8,7 +8,8 @@ under `jax.jit`, `eqx.filter_jit`, `vmap`, `grad` and `checkpoint`.
 
 The handler is a ctypes function that reads XLA's call frame (`jax_impl._ffi`): argument 0 holds
 the per-example flags, argument 1 the message as NUL-terminated bytes, and the one result is zeros
-that the checked array adds, which orders the check before anything that reads the array.
+that pass through an optimization barrier with the checked array, which orders the check before
+anything that reads the array.
 """
 
 from __future__ import annotations
@@ -67,4 +68,7 @@ def raise_if(x: jax.Array, bad: jax.Array, message: str) -> jax.Array:
     # The handler (Python, under the GIL) runs only when a flag is set; under vmap the predicate is
     # batched and both branches run, the handler then checking the flags itself.
     zeros = jax.lax.cond(jnp.any(flags), lambda: call(flags, text), lambda: jnp.zeros_like(flags))
-    return x + zeros.sum().astype(x.dtype)
+    # The barrier makes x's readers wait for the check without a copy of x (adding the zeros to x
+    # wrote one: a 720p velocity's 7 MB before a kernel that reads it).
+    checked, _ = jax.lax.optimization_barrier((x, zeros))
+    return checked
