@@ -143,7 +143,7 @@ _fused_core.defvjp(_fused_core_fwd, _fused_core_bwd, symbolic_zeros=True)
 
 def fused_reconstruct(color, velocity, depth, jitter, o):
     """reconstruct (options `o`, adaptive or not) on the fused kernel; see `unfused_reason`."""
-    neighbors = primitives.neighbor_max(JAX, primitives.tile_max(JAX, velocity, o.tile))
+    neighbors = primitives.neighbor_max_of_velocity(JAX, velocity, o.tile)
     speed = primitives.safe_length(JAX, jax.lax.stop_gradient(neighbors))[:, 0]
     counts = reconstruct_kernel.tile_counts(speed, o, jnp)
     settings = (("tile", o.tile), ("soft_z_extent", o.band), ("min_radius", o.min_radius), ("own_odd", o.directions == "neighbor_and_own"))

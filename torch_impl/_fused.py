@@ -169,7 +169,7 @@ _first_order_only(reconstruct_backward, "reconstruct")
 
 def fused_reconstruct(color: Tensor, velocity: Tensor, depth: Tensor, jitter: Tensor, o) -> Tensor:
     """reconstruct (options `o`, adaptive or not) on the fused kernel; see `unfused_reason`."""
-    neighbors = primitives.neighbor_max(TORCH, primitives.tile_max(TORCH, velocity, o.tile))
+    neighbors = primitives.neighbor_max_of_velocity(TORCH, velocity, o.tile)
     speed = primitives.safe_length(TORCH, neighbors.detach())[:, 0]
     counts = reconstruct_kernel.tile_counts(speed, o, torch)
     settings = (int(o.tile), float(o.band), float(o.min_radius), o.directions == "neighbor_and_own")

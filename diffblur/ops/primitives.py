@@ -120,44 +120,64 @@ def safe_length(be: Any, vector: Any, axis: int = 1) -> Any:
     return be.astype(xp.where(positive, xp.sqrt(xp.where(positive, squared, 1.0)), 0.0), vector.dtype)
 
 
-def _largest(be: Any, candidates: Any, squared: Any, axis: int) -> Any:
-    """Pick, along `axis` of `candidates` (B, 2, ..., N, ...), the vector whose `squared` length
-    (B, ..., N, ...) is largest; argmax returns the first maximum, which is the tie rule."""
-    index = be.argmax(squared, axis - 1)[:, None]
-    return be.xp.squeeze(be.take_along(candidates, index, axis), axis)
+def _gathered(be: Any, vectors: Any, y: Any, x: Any) -> Any:
+    """vectors (B, 2, H, W) at integer rows y and columns x (B, TY, TX): (B, 2, TY, TX). Indexed on
+    the image's own shape, so that under XLA the gradient's scatter adds into another cotangent of
+    the vectors (a kernel's) in place, instead of into a full-size zero (through a reshape it did not)."""
+    batch = be.arange(vectors.shape[0], y.dtype, vectors).reshape(-1, 1, 1)
+    return be.permute(vectors[batch, :, y, x], (0, 3, 1, 2))
 
 
-def tile_max(be: Any, velocity: Any, tile: int) -> Any:
-    """Seed 000 eq. 1 on a checked (B, 2, H, W) velocity: (B, 2, ceil(H / tile), ceil(W / tile))."""
-    batch, _, height, width = velocity.shape
+def _tile_max_index(be: Any, squared: Any, tile: int) -> tuple[Any, Any]:
+    """(B, TY, TX) rows and columns of each tile's largest of squared (B, H, W) lengths."""
+    batch, height, width = squared.shape
     tiles_y, tiles_x = -(-height // tile), -(-width // tile)
     pad_y, pad_x = tiles_y * tile - height, tiles_x * tile - width
     # Padding gets squared length -1 so it never wins, not even against a zero vector.
-    squared = be.pad(squared_length(be, velocity, 1)[:, 0], ((0, 0), (0, pad_y), (0, pad_x)), value=-1.0)
-    padded = be.pad(velocity, ((0, 0), (0, 0), (0, pad_y), (0, pad_x)))
-    squared = be.stop_gradient(squared).reshape(batch, tiles_y, tile, tiles_x, tile)
-    padded = padded.reshape(batch, 2, tiles_y, tile, tiles_x, tile)
+    squared = be.pad(squared, ((0, 0), (0, pad_y), (0, pad_x)), value=-1.0).reshape(batch, tiles_y, tile, tiles_x, tile)
     # In two steps, with no transposed copy of the image: each tile row's first largest, then the
     # first row that holds the tile's largest. That is the first largest in row-major order, the
     # tie rule of an argmax over the tile's pixels.
     column = be.argmax(squared, 4)  # (B, TY, tile, TX, 1)
     row = be.argmax(be.take_along(squared, column, 4), 2)  # (B, TY, 1, TX, 1)
-    column = be.take_along(column, row, 2)
-    largest_row = be.take_along(padded, row[:, None], 3)  # (B, 2, TY, 1, TX, tile)
-    return be.take_along(largest_row, column[:, None], 5)[:, :, :, 0, :, 0]
+    column = be.take_along(column, row, 2)[:, :, 0, :, 0]
+    y = be.arange(tiles_y, row.dtype, squared).reshape(1, -1, 1) * tile + row[:, :, 0, :, 0]
+    x = be.arange(tiles_x, column.dtype, squared).reshape(1, 1, -1) * tile + column
+    return y, x
+
+
+def _neighbor_max_index(be: Any, squared: Any) -> tuple[Any, Any]:
+    """(B, TY, TX) rows and columns of each tile's 3 x 3 neighbourhood's largest of squared
+    (B, TY, TX) lengths, the first in row-major order of the neighbourhood on ties."""
+    xp = be.xp
+    _, tiles_y, tiles_x = squared.shape
+    padded = be.pad(squared, ((0, 0), (1, 1), (1, 1)), value=-1.0)
+    offsets = [(dy, dx) for dy in range(3) for dx in range(3)]
+    which = be.argmax(xp.stack([padded[:, dy : dy + tiles_y, dx : dx + tiles_x] for dy, dx in offsets], 1), 1)[:, 0]
+    y = be.arange(tiles_y, which.dtype, squared).reshape(1, -1, 1) + which // 3 - 1
+    x = be.arange(tiles_x, which.dtype, squared).reshape(1, 1, -1) + which % 3 - 1
+    return y, x
+
+
+def tile_max(be: Any, velocity: Any, tile: int) -> Any:
+    """Seed 000 eq. 1 on a checked (B, 2, H, W) velocity: (B, 2, ceil(H / tile), ceil(W / tile))."""
+    return _gathered(be, velocity, *_tile_max_index(be, be.stop_gradient(squared_length(be, velocity, 1)[:, 0]), tile))
 
 
 def neighbor_max(be: Any, tile_velocity: Any) -> Any:
     """Seed 000 eq. 2 on checked (B, 2, TH, TW) tile velocities: each tile's 3 x 3 neighbourhood's
     largest vector."""
-    xp = be.xp
-    _, _, tiles_y, tiles_x = tile_velocity.shape
-    squared = be.pad(squared_length(be, tile_velocity, 1)[:, 0], ((0, 0), (1, 1), (1, 1)), value=-1.0)
-    padded = be.pad(tile_velocity, ((0, 0), (0, 0), (1, 1), (1, 1)))
-    offsets = [(dy, dx) for dy in range(3) for dx in range(3)]
-    candidates = xp.stack([padded[:, :, dy : dy + tiles_y, dx : dx + tiles_x] for dy, dx in offsets], 2)
-    candidate_squared = xp.stack([squared[:, dy : dy + tiles_y, dx : dx + tiles_x] for dy, dx in offsets], 1)
-    return _largest(be, candidates, candidate_squared, axis=2)
+    return _gathered(be, tile_velocity, *_neighbor_max_index(be, be.stop_gradient(squared_length(be, tile_velocity, 1)[:, 0])))
+
+
+def neighbor_max_of_velocity(be: Any, velocity: Any, tile: int) -> Any:
+    """neighbor_max(tile_max(velocity, tile)), the same values and gradient, as one gather from the
+    velocity: each tile's NeighborMax is the velocity of one pixel."""
+    squared = be.stop_gradient(squared_length(be, velocity, 1)[:, 0])
+    y, x = _tile_max_index(be, squared, tile)
+    batch = be.arange(squared.shape[0], y.dtype, squared).reshape(-1, 1, 1)
+    tile_y, tile_x = _neighbor_max_index(be, squared[batch, y, x])
+    return _gathered(be, velocity, y[batch, tile_y, tile_x], x[batch, tile_y, tile_x])
 
 
 def velocity_from_motion(be: Any, displacement: Any, exposure: float | Any, max_radius: float, min_radius: float) -> Any:

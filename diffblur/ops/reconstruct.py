@@ -25,7 +25,7 @@ from diffblur.conventions import (
 )
 from diffblur.ops import adaptive
 from diffblur.ops._options import OpOptions, impl_option, takes_kernel
-from diffblur.ops.primitives import at_least, cone, cylinder, neighbor_max, safe_length, soft_depth_compare, tile_max
+from diffblur.ops.primitives import at_least, cone, cylinder, neighbor_max_of_velocity, safe_length, soft_depth_compare
 from diffblur.ops.pyramid import Pyramid
 from diffblur.ops.sampling import pixel_grid, position_dtype, sample
 from diffblur.ops.taps import reconstruct_tap_time, shutter_factor
@@ -248,7 +248,7 @@ def _reconstruct(be: Any, color: Any, velocity: Any, depth: Any, jitter: Any, o:
     dtype, the values read are widened."""
     _, _, height, width = color.shape
     wide = position_dtype(be, color.dtype)
-    neighbors = neighbor_max(be, tile_max(be, velocity, o.tile))
+    neighbors = neighbor_max_of_velocity(be, velocity, o.tile)
     v_n = be.astype(be.repeat(be.repeat(neighbors, o.tile, 2), o.tile, 3)[:, :, :height, :width], wide)
     v_x = be.astype(velocity, wide)
     length_x = safe_length(be, v_x)  # the tap offset along V[X] is |t| |V[X]|
@@ -267,7 +267,7 @@ def _reconstruct(be: Any, color: Any, velocity: Any, depth: Any, jitter: Any, o:
 def _adaptive_reconstruct(be: Any, color: Any, velocity: Any, depth: Any, jitter: Any, o: ReconstructOptions) -> Any:
     """reconstruct with tiled adaptive sampling: its tiles (ceil(max_radius)), speed = |NeighborMax|."""
     _, _, height, width = color.shape
-    speed = safe_length(be, neighbor_max(be, tile_max(be, be.stop_gradient(velocity), o.tile)))[:, 0]
+    speed = safe_length(be, neighbor_max_of_velocity(be, be.stop_gradient(velocity), o.tile))[:, 0]
     still = adaptive.still_speed(o.early_out)
     concrete = be.values(speed)
     if concrete is None:  # compiled: every class on every pixel, selected per tile
@@ -299,7 +299,7 @@ def _reconstruct_compacted(be: Any, color: Any, velocity: Any, depth: Any, jitte
     the saving usually pays for."""
     batch, channels, height, width = color.shape
     wide = position_dtype(be, color.dtype)
-    neighbors = neighbor_max(be, tile_max(be, velocity, o.tile))
+    neighbors = neighbor_max_of_velocity(be, velocity, o.tile)
     buffers = adaptive.table(be, be.concat([color, velocity, depth], 1))
     neighbor_table, jitter_table = adaptive.table(be, neighbors), adaptive.table(be, jitter)
     tiles_y, tiles_x = neighbors.shape[2:]
