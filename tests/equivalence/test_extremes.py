@@ -101,6 +101,25 @@ def test_tile_and_neighbor_max_on_sizes_not_multiple_of_tile(backend, height, wi
     np.testing.assert_array_equal(backend.numpy(ops.neighbor_max(tiles)), reference.neighbor_max(reference.tile_max(velocity, tile)))
 
 
+@pytest.mark.parametrize("height,width,tile", [(9, 8, 4), (21, 19, 20), (7, 30, 3)])
+def test_neighbor_max_of_the_velocity_in_one_gather_is_neighbor_max_of_tile_max(backend, height, width, tile):
+    """The fused reconstruct's NeighborMax (one gather from the velocity) against the two steps:
+    the same vectors and the same gradient, ties included (whole rows of equal speeds)."""
+    from diffblur.ops import primitives
+
+    be = backend.ops._backend.TORCH if backend.name == "torch" else backend.ops._backend.JAX
+    rng = np.random.default_rng(height * 100 + width + tile)
+    velocity = np.round(rng.normal(size=(2, 2, height, width)) * 3)
+    velocity[:, 0, ::3], velocity[:, 1, ::3] = 2.0, -2.0  # rows of equal vectors: ties in tiles and between them
+    weights = backend.array(rng.normal(size=(2, 2, -(-height // tile), -(-width // tile))))
+    one_gather = lambda v: primitives.neighbor_max_of_velocity(be, v, tile) * weights  # noqa: E731
+    two_steps = lambda v: primitives.neighbor_max(be, primitives.tile_max(be, v, tile)) * weights  # noqa: E731
+    array = backend.array(velocity)
+    np.testing.assert_array_equal(backend.numpy(one_gather(array)), backend.numpy(two_steps(array)))
+    np.testing.assert_array_equal(backend.numpy(primitives.neighbor_max_of_velocity(be, array, tile)), reference.neighbor_max(reference.tile_max(velocity, tile)))
+    np.testing.assert_array_equal(backend.grad(one_gather, array)[0], backend.grad(two_steps, array)[0])
+
+
 def test_tile_max_picks_largest_magnitude_not_componentwise_max(backend):
     ops = backend.ops
     velocity = np.zeros((1, 2, 2, 2))
