@@ -25,6 +25,7 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm import tqdm
 
 import jax_impl
 from diffblur.app.bench import _inputs, uniform_scene
@@ -64,7 +65,7 @@ def main() -> None:
         "backward kernel alone": lambda: backward(*captured["backward"][0], **captured["backward"][1], into=captured["backward"][2]),
     }
     times = {name: [] for name in calls}
-    for _ in range(args.repeats):
+    for _ in tqdm(range(args.repeats), desc="timing in turns", unit="round"):
         for name, call in calls.items():
             start = time.perf_counter()
             call()
@@ -79,7 +80,7 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as folder:
         with jax.profiler.trace(folder, create_perfetto_trace=True):
-            for _ in range(args.repeats):
+            for _ in tqdm(range(args.repeats), desc="tracing", unit="call"):
                 calls["XLA program (fwd+bwd)"]()
         events = json.load(gzip.open(glob.glob(f"{folder}/**/*.trace.json.gz", recursive=True)[0]))["traceEvents"]
     per_op = collections.defaultdict(float)
