@@ -791,9 +791,9 @@ def _instants(
     # instant's intermediates, kept for the backward, come to some 200 numbers per padded pixel by
     # tensor ops (10 MB on 1x4097), some 60 on the fused kernel (its 2 C + 3 sums, the composite
     # and the depth read on the path, `_going_on_behind`). A chunk of CHUNK_PIXEL_POINTS by those
-    # shares keeps the peak O(pixels) and small (tests/test_degenerate_memory.py; with the depth
-    # read, line images peaked at up to 17.8 MB at share 4, 14.9 at 5: docs/robustness.md); the fused share lets a 128 x 128
-    # image take three instants a kernel call, not one.
+    # shares keeps the peak O(pixels) and small (tests/test_degenerate_memory.py: line images peak
+    # at up to 14.9 MB at share 5, 17.8 at 4; docs/robustness.md); the fused share lets a
+    # 128 x 128 image take three instants a kernel call, not one.
     share = INSTANT_SHARE_FUSED if fused else INSTANT_SHARE_TENSOR
     chunk = max(1, CHUNK_PIXEL_POINTS // (share * batch * (height + 2) * (width + 2)))
     start = be.zeros((batch, channels, height, width), wide, color)

@@ -391,6 +391,7 @@ def _own_surface(color, depth, curves, times, masses, extent) -> np.ndarray:
     time t with X + p(-t) in the image, weighted by how level the depth there is with X's
     (softDepthCompare both ways); X's colour where that weight is 0."""
     from diffblur.reference import sample_bilinear
+
     batch, channels, height, width = color.shape
     own = color.copy()
     for b in range(batch):
