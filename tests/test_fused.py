@@ -165,6 +165,30 @@ def test_shifted_rows_with_motion_across_several_bands():
     _assert_close(_jax_run(arrays, options, "fused", jax.jit), _jax_run(arrays, options, "tensor"), FUSED_FLOAT64)
 
 
+@pytest.mark.parametrize("channels", [1, 3, 4])
+@pytest.mark.parametrize("motion", ["horizontal", "diagonal"])
+@pytest.mark.parametrize("jitter", ["none", "noise"])
+def test_any_channel_count_and_taps_on_a_row(channels, motion, jitter):
+    """The backward reads three colours in one loop and the others one channel at a time; a
+    horizontal motion puts every tap on a row (fraction fy = 0: the shifted rows' gradients go to
+    the top row only). Both against the pure ops, shifted rows (jitter "none") and per pixel."""
+    rng = np.random.default_rng(11)
+    height, width = 13, 30
+    color = rng.random((BATCH, channels, height, width))
+    velocity = np.zeros((BATCH, 2, height, width))
+    velocity[:, 0] = 2.6
+    velocity[:, 0, 3:9, 8:20] = -4.5
+    if motion == "diagonal":
+        velocity[:, 1] = 1.3
+        velocity[:, :, 3:9, 8:20] += rng.normal(0, 0.3, size=(BATCH, 2, 6, 12))
+    depth = np.where(velocity[:, :1] < 0, 1.0, 2.0) + rng.uniform(0, 0.05, size=(BATCH, 1, height, width))
+    cotangent = rng.standard_normal((BATCH, channels, height, width))
+    options = dict(max_radius=4.0, samples=7, jitter=jitter)
+    arrays = [color, velocity, depth, cotangent]
+    _assert_close(_torch_run(arrays, options, "fused"), _torch_run(arrays, options, "tensor"), FUSED_FLOAT64)
+    _assert_close(_jax_run(arrays, options, "fused", jax.jit), _jax_run(arrays, options, "tensor"), FUSED_FLOAT64)
+
+
 def test_float32_both_frameworks_agree():
     arrays = _scene(np.float32, seed=1)
     options = CASES["default"]

@@ -282,11 +282,13 @@ def _tap_gradients(z_x, speed_x, inverse_x, distance, g_alpha, v_yx, v_yy, z_y, 
     d_distance, d_speed = _cylinder_grad(distance, speed_x, inverse_x, g_alpha * two * cylinder_y)
     g_distance += d_distance
     g_speed_x += d_speed
-    # V[Y] through speed_y = max(|V[Y]|, min_radius).
+    # V[Y] through speed_y = max(|V[Y]|, min_radius): d |V| / d V = V / |V|, with inverse_y for 1 / |V|
+    # (equal where the speed is at least EPSILON; below it the classifiers' g_speed_y is zero).
     moving = (length_y >= min_radius) & (length_y > 0.0)
     zero = _real(0.0, g_speed_y * v_yx)
-    g_v_yx = g_speed_y * v_yx / length_y if moving else zero
-    g_v_yy = g_speed_y * v_yy / length_y if moving else zero
+    g_over_length = g_speed_y * inverse_y
+    g_v_yx = g_over_length * v_yx if moving else zero
+    g_v_yy = g_over_length * v_yy if moving else zero
     return alpha, g_v_yx, g_v_yy, behind_slope - front_slope, g_speed_x, front_slope - behind_slope, g_distance
 
 
@@ -396,8 +398,8 @@ def _reconstruct_forward(
                                 top_c = np.uint64((b * channels + c) * plane + top)
                                 for u in range(np.uint64(first), np.uint64(last)):  # vectorized
                                     total_s[chunk, c, u] += alpha_s[chunk, u] * _row_read(color_flat, top_c + u, below, fx, fy)
-                            for p in range(q, segment_end - start):  # the border, clamped: one by one
-                                if p < first or p >= last:
+                            for side in range(2):  # the border, clamped: one by one, [q, first) and [last, segment's end)
+                                for p in range(q if side == 0 else last, first if side == 0 else segment_end - start):
                                     column, row0, fx, fy, _, _ = _tap_corner((start + p) + shift_x, py, last_x, last_y)
                                     row1 = min(row0 + 1, height - 1)
                                     _, _, v_yx = _clamped_read_slopes(velocity_flat, 2 * b * plane, width, row0, row1, column, fx, fy)
@@ -488,9 +490,11 @@ def _add_row(target, at, row_weight, fx, value_s, chunk, first, last):
 
 @_inline
 def _add_rows(grads_rows, top_at, bottom_at, fx, fy, value_s, chunk, first, last):
-    """`_add_row` for both rows a tap reads, weighted 1 - fy and fy."""
+    """`_add_row` for both rows a tap reads, weighted 1 - fy and fy; only the top row where the tap
+    lies on a row (fy = 0: every tap of a horizontal motion)."""
     _add_row(grads_rows, np.uint64(top_at), _real(1.0, fy) - fy, fx, value_s, chunk, first, last)
-    _add_row(grads_rows, np.uint64(bottom_at), fy, fx, value_s, chunk, first, last)
+    if fy != 0.0:
+        _add_row(grads_rows, np.uint64(bottom_at), fy, fx, value_s, chunk, first, last)
 
 
 @_inline
@@ -506,7 +510,7 @@ def _scatter_rows(grads_rows, top_at, bottom_at, column0, column1, fx, fy, grad)
 @_inline
 def _border_tap_backward(
     color_flat, velocity_flat, depth_flat, grads_rows, margins, bands, reach, color, b, chunk, p, px, py, t, distance, min_radius, extent, scatter,
-    g_total_s, out_s, z_x_s, speed_x_s, inverse_x_s, g_speed_x_s, g_z_x_s, g_nx_s, g_ny_s, g_speed_n_s,
+    g_total_s, g_out_s, z_x_s, speed_x_s, inverse_x_s, g_speed_x_s, g_z_x_s, g_nx_s, g_ny_s, g_speed_n_s,
 ):
     """One pixel's tap on the shifted rows' clamped border, the general path's arithmetic: the
     classifiers' derivatives into the pixel's sums, the reads' gradients where `_row_target` puts
@@ -521,13 +525,13 @@ def _border_tap_backward(
     column, row0, fx, fy, inside_x, inside_y = _tap_corner(px, py, last_x, last_y)
     row1 = min(row0 + 1, height - 1)
     column1 = min(column + 1, width - 1)
-    g_alpha = 0.0
+    g_alpha = -g_out_s[chunk, p]
     slope_x = 0.0
     slope_y = 0.0
     for c in range(channels):
         d_x, d_y, c_y = _clamped_read_slopes(color_flat, (b * channels + c) * plane, width, row0, row1, column, fx, fy)
         g_total = g_total_s[chunk, c, p]
-        g_alpha += g_total * (c_y - out_s[chunk, c, p])
+        g_alpha += g_total * c_y
         slope_x += g_total * d_x
         slope_y += g_total * d_y
     slope_vxx, slope_vxy, v_yx = _clamped_read_slopes(velocity_flat, 2 * b * plane, width, row0, row1, column, fx, fy)
@@ -559,7 +563,7 @@ def _border_tap_backward(
 def _reconstruct_backward(
     pairs, color_flat, velocity_flat, depth_flat, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, rows, order,
     scatter_color, scatter_velocity, scatter_depth, bands, reach, out, weight, grad_out, grads, grads_rows, margins, grad_neighbors,
-    jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, g_total_s, out_s,
+    jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, g_total_s, g_out_s,
     column_s, row_s, t_s, fx_s, fy_s, inside_x_s, inside_y_s, g_alpha_s, slope_x_s, slope_y_s, alpha_s, g_v_yx_s, g_v_yy_s, g_z_y_s,
     g_speed_x_s, g_z_x_s, g_vx_s, g_vy_s, g_length_x_s, g_nx_s, g_ny_s, g_speed_n_s, value_s,
 ):
@@ -567,8 +571,7 @@ def _reconstruct_backward(
     backward, for the inputs whose scatter_* flag is 1 (ints: see the note above on aliases); the
     other inputs' gradients come out incomplete. A chunk is the rows order[bands[chunk]:bands[chunk
     + 1]]. grad_neighbors: (chunks, B, 2, TH, TW) zeros, or (1, B, 2, TH, TW) for shifted rows (a
-    band owns its tile rows); *_s scratch: (chunks, >= _BLOCK), g_total_s and out_s (chunks, C,
-    >= _BLOCK).
+    band owns its tile rows); *_s scratch: (chunks, >= _BLOCK), g_total_s (chunks, C, >= _BLOCK).
 
     rows = 0, per pixel (pairs): per tap index k one vector loop places the taps, one per channel
     reads the colours, one runs the classifiers' derivatives; then a scalar loop scatters the
@@ -616,17 +619,19 @@ def _reconstruct_backward(
                     continue
                 _block_state(velocity, depth, neighbors, jitter, b, jb, y, start, end, tile, min_radius, chunk, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s)
                 # out = total / w: d total = g / w, d w = -sum(g out) / w; per tap alpha and
-                # alpha C[Y] both enter, so d alpha = sum(g (C[Y] - out)) / w. g_speed_x_s first
-                # sums g (C[X] - out), the centre's share.
+                # alpha C[Y] both enter, so d alpha = sum(g C[Y]) / w - g_out, with g_out = sum(g
+                # out) / w the same for every tap. g_speed_x_s first sums g (C[X] - out), the
+                # centre's share.
                 for p in range(size):
                     g_speed_x_s[chunk, p] = 0.0
+                    g_out_s[chunk, p] = 0.0
                 for c in range(channels):
                     for p in range(size):  # vectorized
                         x = start + p
                         ux = np.uint64(x)  # unsigned: see _block_state
                         g_total = grad_out[b, c, y, ux] / weight[b, y, ux]
                         g_total_s[chunk, c, p] = g_total
-                        out_s[chunk, c, p] = out[b, c, y, ux]
+                        g_out_s[chunk, p] += g_total * out[b, c, y, ux]
                         g_speed_x_s[chunk, p] += g_total * (color[b, c, y, ux] - out[b, c, y, ux])
                         _add_gradient(grads, grads_rows, rows, chunk, b, y, x, c, g_total / speed_x_s[chunk, p], batch, stored, plane, width)
                 for p in range(size):  # vectorized
@@ -666,18 +671,32 @@ def _reconstruct_backward(
                             top_vx = np.uint64(2 * b * plane + top)
                             top_vy = np.uint64((2 * b + 1) * plane + top)
                             top_z = np.uint64(b * plane + top)
-                            for u in range(np.uint64(first), np.uint64(last)):
-                                g_alpha_s[chunk, u] = 0.0
-                                slope_x_s[chunk, u] = 0.0
-                                slope_y_s[chunk, u] = 0.0
-                            for c in range(channels):
-                                top_c = np.uint64((b * channels + c) * plane + top)
-                                for u in range(np.uint64(first), np.uint64(last)):  # vectorized: the colours read
-                                    d_x, d_y, c_y = _row_read_slopes(color_flat, top_c + u, below, fx_r, fy_r)
-                                    g_total = g_total_s[chunk, c, u]
-                                    g_alpha_s[chunk, u] += g_total * (c_y - out_s[chunk, c, u])
-                                    slope_x_s[chunk, u] += g_total * d_x  # times alpha below
-                                    slope_y_s[chunk, u] += g_total * d_y
+                            if channels == 3:  # the usual case: the three colours read in one loop, their sums in registers
+                                top_c = np.uint64(3 * b * plane + top)
+                                plane_u = np.uint64(plane)
+                                for u in range(np.uint64(first), np.uint64(last)):  # vectorized
+                                    d_x0, d_y0, c_y0 = _row_read_slopes(color_flat, top_c + u, below, fx_r, fy_r)
+                                    d_x1, d_y1, c_y1 = _row_read_slopes(color_flat, top_c + plane_u + u, below, fx_r, fy_r)
+                                    d_x2, d_y2, c_y2 = _row_read_slopes(color_flat, top_c + plane_u + plane_u + u, below, fx_r, fy_r)
+                                    g_0 = g_total_s[chunk, 0, u]
+                                    g_1 = g_total_s[chunk, 1, u]
+                                    g_2 = g_total_s[chunk, 2, u]
+                                    g_alpha_s[chunk, u] = g_0 * c_y0 + g_1 * c_y1 + g_2 * c_y2 - g_out_s[chunk, u]
+                                    slope_x_s[chunk, u] = g_0 * d_x0 + g_1 * d_x1 + g_2 * d_x2
+                                    slope_y_s[chunk, u] = g_0 * d_y0 + g_1 * d_y1 + g_2 * d_y2
+                            else:
+                                for u in range(np.uint64(first), np.uint64(last)):
+                                    g_alpha_s[chunk, u] = -g_out_s[chunk, u]
+                                    slope_x_s[chunk, u] = 0.0
+                                    slope_y_s[chunk, u] = 0.0
+                                for c in range(channels):
+                                    top_c = np.uint64((b * channels + c) * plane + top)
+                                    for u in range(np.uint64(first), np.uint64(last)):  # vectorized: the colours read
+                                        d_x, d_y, c_y = _row_read_slopes(color_flat, top_c + u, below, fx_r, fy_r)
+                                        g_total = g_total_s[chunk, c, u]
+                                        g_alpha_s[chunk, u] += g_total * c_y
+                                        slope_x_s[chunk, u] += g_total * d_x  # times alpha below
+                                        slope_y_s[chunk, u] += g_total * d_y
                             for u in range(np.uint64(first), np.uint64(last)):  # vectorized: the classifiers
                                 slope_vxx, slope_vxy, v_yx = _row_read_slopes(velocity_flat, top_vx + u, below, fx_r, fy_r)
                                 slope_vyx, slope_vyy, v_yy = _row_read_slopes(velocity_flat, top_vy + u, below, fx_r, fy_r)
@@ -711,11 +730,11 @@ def _reconstruct_backward(
                                 _add_rows(grads_rows, top_at + (channels + 1) * top_stride, bottom_at + (channels + 1) * bottom_stride, fx_r, fy_r, g_v_yy_s, chunk, first, last)
                             if scatter_depth != 0:
                                 _add_rows(grads_rows, top_at + (channels + 2) * top_stride, bottom_at + (channels + 2) * bottom_stride, fx_r, fy_r, g_z_y_s, chunk, first, last)
-                            for p in range(q, segment_end - start):  # the border, clamped: one by one
-                                if p < first or p >= last:
+                            for side in range(2):  # the border, clamped: one by one, [q, first) and [last, segment's end)
+                                for p in range(q if side == 0 else last, first if side == 0 else segment_end - start):
                                     _border_tap_backward(
                                         color_flat, velocity_flat, depth_flat, grads_rows, margins, bands, reach, color, b, chunk, p, (start + p) + shift_x, py, t, distance, min_radius, extent, scatter,
-                                        g_total_s, out_s, z_x_s, speed_x_s, inverse_x_s, g_speed_x_s, g_z_x_s, g_nx_s, g_ny_s, g_speed_n_s,
+                                        g_total_s, g_out_s, z_x_s, speed_x_s, inverse_x_s, g_speed_x_s, g_z_x_s, g_nx_s, g_ny_s, g_speed_n_s,
                                     )
                             segment = segment_end
                         continue
@@ -732,7 +751,7 @@ def _reconstruct_backward(
                         fy_s[chunk, p] = fy
                         inside_x_s[chunk, p] = inside_x
                         inside_y_s[chunk, p] = inside_y
-                        g_alpha_s[chunk, p] = 0.0
+                        g_alpha_s[chunk, p] = -g_out_s[chunk, p]
                         slope_x_s[chunk, p] = 0.0
                         slope_y_s[chunk, p] = 0.0
                     for c in range(channels):
@@ -742,7 +761,7 @@ def _reconstruct_backward(
                             below_pair = width * stored if row0 < height - 1 else 0
                             d_x, d_y, c_y = _pair_read_slopes(pairs, index, below_pair, fx_s[chunk, p], fy_s[chunk, p])
                             g_total = g_total_s[chunk, c, p]
-                            g_alpha_s[chunk, p] += g_total * (c_y - out_s[chunk, c, p])
+                            g_alpha_s[chunk, p] += g_total * c_y
                             slope_x_s[chunk, p] += g_total * d_x  # times alpha below
                             slope_y_s[chunk, p] += g_total * d_y
                     for p in range(size):  # vectorized: the classifiers and their derivatives
@@ -887,7 +906,7 @@ class ReconstructBackwardScratch(NamedTuple):
     inverse_x: Floats
     z_x: Floats
     g_total: ChannelFloats
-    out: ChannelFloats
+    g_out: Floats
     column: Ints
     row: Ints
     t: Floats
