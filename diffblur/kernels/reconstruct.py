@@ -116,7 +116,8 @@ def tile_counts(speed: Any, o: Any, xp: Any) -> Any:
 @_inline
 def _floored_inverse(speed):
     """1 / max(speed, EPSILON): the classifiers divide by the floored speed; one division per speed."""
-    return _real(1.0, speed) / (speed if speed >= EPSILON else _real(EPSILON, speed))
+    floor = _real(EPSILON, speed)  # in the speed's precision: float32(EPSILON) is the first float32 above it
+    return _real(1.0, speed) / (speed if speed >= floor else floor)
 
 
 @_inline
@@ -135,7 +136,7 @@ def _cone_grad(distance, speed, inverse, grad):
     u = _real(1.0, ratio) - ratio
     zero = _real(0.0, grad * ratio)
     grad = grad if (u >= 0.0) & (u <= 1.0) else zero
-    d_speed = grad * ratio * inverse if speed >= EPSILON else zero
+    d_speed = grad * ratio * inverse if speed >= _real(EPSILON, speed) else zero
     return -grad * inverse, d_speed
 
 
@@ -156,7 +157,7 @@ def _cylinder_grad(distance, speed, inverse, grad):
     q = (ratio - _real(CYLINDER_INNER, ratio)) * span
     zero = _real(0.0, grad * ratio)
     d_q = grad * (_real(-6.0, ratio) * q * (_real(1.0, ratio) - q)) * span if (q >= 0.0) & (q <= 1.0) else zero
-    d_speed = -d_q * ratio * inverse if speed >= EPSILON else zero
+    d_speed = -d_q * ratio * inverse if speed >= _real(EPSILON, speed) else zero
     return d_q * inverse, d_speed
 
 
@@ -166,10 +167,7 @@ def _tap_alpha(z_x, z_y, v_yx, v_yy, distance, inverse_x, min_radius, extent, in
     """A tap's weight from Z[X], the values read at Y and the tap's distance: the three classifiers."""
     length_y = math.sqrt(v_yx * v_yx + v_yy * v_yy)
     speed_y = length_y if length_y >= min_radius else min_radius
-    # `_floored_inverse` with EPSILON in the speed's precision (the same comparison for every float32
-    # speed: float32(EPSILON) is the first float32 above it), which LLVM schedules better here, not in the backward.
-    floor = _real(EPSILON, speed_y)
-    inverse_y = _real(1.0, speed_y) / (speed_y if speed_y >= floor else floor)
+    inverse_y = _floored_inverse(speed_y)
     return (
         _soft_depth_compare(z_x, z_y, extent, inverse_extent) * _cone(distance, inverse_y)
         + _soft_depth_compare(z_y, z_x, extent, inverse_extent) * _cone(distance, inverse_x)
@@ -456,6 +454,19 @@ def _add_gradient(grads, grads_rows, rows, chunk, b, y, x, k, value, batch, stor
 
 
 @_inline
+def _add_own(grads, grads_rows, rows, chunk, b, y, start, size, k, value_s, stored, plane, width):
+    """`_add_gradient` of value_s[chunk, p] at the pixels (y, start + p), p < size: for shifted rows
+    one contiguous vector add into the band's own row."""
+    if rows != 0:
+        at = np.uint64((b * stored + k) * plane + y * width + start)
+        for p in range(np.uint64(size)):  # vectorized
+            grads_rows[at + p] += value_s[chunk, p]
+    else:
+        for p in range(size):
+            grads[chunk, b, y, np.uint64(start + p), k] += value_s[chunk, p]
+
+
+@_inline
 def _row_target(bands, chunk, reach, b, row, stored, plane, width, margins):
     """Where the gradients of row `row` of image b go in the shifted-row backward's flat buffer,
     for band `chunk`: the index of the row's first pixel in channel 0, and the stride between
@@ -633,7 +644,8 @@ def _reconstruct_backward(
                         g_total_s[chunk, c, p] = g_total
                         g_out_s[chunk, p] += g_total * out[b, c, y, ux]
                         g_speed_x_s[chunk, p] += g_total * (color[b, c, y, ux] - out[b, c, y, ux])
-                        _add_gradient(grads, grads_rows, rows, chunk, b, y, x, c, g_total / speed_x_s[chunk, p], batch, stored, plane, width)
+                        value_s[chunk, p] = g_total / speed_x_s[chunk, p]  # the centre's C[X] / speed
+                    _add_own(grads, grads_rows, rows, chunk, b, y, start, size, c, value_s, stored, plane, width)
                 for p in range(size):  # vectorized
                     speed_x = speed_x_s[chunk, p]
                     g_speed_x_s[chunk, p] = -g_speed_x_s[chunk, p] / (speed_x * speed_x)
@@ -813,24 +825,20 @@ def _reconstruct_backward(
                             _scatter_chunk(grads, chunk, b, channels + 1, row0, row1, column, column1, fx, fy, g_v_yy_s[chunk, p])
                         if scatter_depth != 0:
                             _scatter_chunk(grads, chunk, b, channels + 2, row0, row1, column, column1, fx, fy, g_z_y_s[chunk, p])
-                for p in range(size):  # vectorized: each pixel's own V[X], Z[X] and NeighborMax
-                    x = start + p
+                for p in range(size):  # vectorized: each pixel's own V[X] and NeighborMax through their lengths
                     length_x = length_x_s[chunk, p]
-                    g_length_x = g_length_x_s[chunk, p]
-                    if length_x >= min_radius:
-                        g_length_x += g_speed_x_s[chunk, p]
-                    g_vx = g_vx_s[chunk, p]
-                    g_vy = g_vy_s[chunk, p]
-                    if length_x > 0.0:
-                        g_vx += g_length_x * vx_s[chunk, p] / length_x
-                        g_vy += g_length_x * vy_s[chunk, p] / length_x
+                    zero = _real(0.0, length_x)
+                    g_length_x = g_length_x_s[chunk, p] + (g_speed_x_s[chunk, p] if length_x >= min_radius else zero)
+                    over_length = g_length_x / length_x if length_x > 0.0 else zero
+                    g_vx_s[chunk, p] += over_length * vx_s[chunk, p]
+                    g_vy_s[chunk, p] += over_length * vy_s[chunk, p]
                     speed_n = speed_n_s[chunk, p]
-                    if speed_n > 0.0:
-                        g_nx_s[chunk, p] += g_speed_n_s[chunk, p] * nx_s[chunk, p] / speed_n
-                        g_ny_s[chunk, p] += g_speed_n_s[chunk, p] * ny_s[chunk, p] / speed_n
-                    _add_gradient(grads, grads_rows, rows, chunk, b, y, x, channels, g_vx, batch, stored, plane, width)
-                    _add_gradient(grads, grads_rows, rows, chunk, b, y, x, channels + 1, g_vy, batch, stored, plane, width)
-                    _add_gradient(grads, grads_rows, rows, chunk, b, y, x, channels + 2, g_z_x_s[chunk, p], batch, stored, plane, width)
+                    over_speed = g_speed_n_s[chunk, p] / speed_n if speed_n > 0.0 else zero
+                    g_nx_s[chunk, p] += over_speed * nx_s[chunk, p]
+                    g_ny_s[chunk, p] += over_speed * ny_s[chunk, p]
+                _add_own(grads, grads_rows, rows, chunk, b, y, start, size, channels, g_vx_s, stored, plane, width)
+                _add_own(grads, grads_rows, rows, chunk, b, y, start, size, channels + 1, g_vy_s, stored, plane, width)
+                _add_own(grads, grads_rows, rows, chunk, b, y, start, size, channels + 2, g_z_x_s, stored, plane, width)
                 tile_y = y // tile
                 for tile_x in range(start // tile, (end - 1) // tile + 1):  # NeighborMax's: one sum per tile
                     g_nx = 0.0
