@@ -192,6 +192,13 @@ def _row_read(flat, top, below, fx, fy):
 
 
 @_inline
+def _on_row_read(flat, top, fx):
+    """`_row_read` of a tap that lies on a row (fy = 0): the row below has no weight."""
+    left = flat[top]
+    return left + fx * (flat[top + np.uint64(1)] - left)
+
+
+@_inline
 def _row_read_slopes(flat, top, below, fx, fy):
     """d read / d fx, d read / d fy and the read of `_row_read`."""
     one = np.uint64(1)
@@ -385,17 +392,30 @@ def _reconstruct_forward(
                             top_vx = np.uint64(2 * b * plane + top)
                             top_vy = np.uint64((2 * b + 1) * plane + top)
                             top_z = np.uint64(b * plane + top)
-                            for u in range(np.uint64(first), np.uint64(last)):  # vectorized: contiguous reads
-                                v_yx = _row_read(velocity_flat, top_vx + u, below, fx, fy)
-                                v_yy = _row_read(velocity_flat, top_vy + u, below, fx, fy)
-                                z_y = _row_read(depth_flat, top_z + u, below, fx, fy)
-                                alpha = _tap_alpha(z_x_s[chunk, u], z_y, v_yx, v_yy, distance, inverse_x_s[chunk, u], min_radius, extent, inverse_extent)
-                                alpha_s[chunk, u] = alpha
-                                weight_s[chunk, u] += alpha
-                            for c in range(channels):
-                                top_c = np.uint64((b * channels + c) * plane + top)
-                                for u in range(np.uint64(first), np.uint64(last)):  # vectorized
-                                    total_s[chunk, c, u] += alpha_s[chunk, u] * _row_read(color_flat, top_c + u, below, fx, fy)
+                            if fy == 0.0:  # the tap lies on a row (every tap of a horizontal motion): one row read, the same values
+                                for u in range(np.uint64(first), np.uint64(last)):  # vectorized: contiguous reads
+                                    v_yx = _on_row_read(velocity_flat, top_vx + u, fx)
+                                    v_yy = _on_row_read(velocity_flat, top_vy + u, fx)
+                                    z_y = _on_row_read(depth_flat, top_z + u, fx)
+                                    alpha = _tap_alpha(z_x_s[chunk, u], z_y, v_yx, v_yy, distance, inverse_x_s[chunk, u], min_radius, extent, inverse_extent)
+                                    alpha_s[chunk, u] = alpha
+                                    weight_s[chunk, u] += alpha
+                                for c in range(channels):
+                                    top_c = np.uint64((b * channels + c) * plane + top)
+                                    for u in range(np.uint64(first), np.uint64(last)):  # vectorized
+                                        total_s[chunk, c, u] += alpha_s[chunk, u] * _on_row_read(color_flat, top_c + u, fx)
+                            else:
+                                for u in range(np.uint64(first), np.uint64(last)):  # vectorized: contiguous reads
+                                    v_yx = _row_read(velocity_flat, top_vx + u, below, fx, fy)
+                                    v_yy = _row_read(velocity_flat, top_vy + u, below, fx, fy)
+                                    z_y = _row_read(depth_flat, top_z + u, below, fx, fy)
+                                    alpha = _tap_alpha(z_x_s[chunk, u], z_y, v_yx, v_yy, distance, inverse_x_s[chunk, u], min_radius, extent, inverse_extent)
+                                    alpha_s[chunk, u] = alpha
+                                    weight_s[chunk, u] += alpha
+                                for c in range(channels):
+                                    top_c = np.uint64((b * channels + c) * plane + top)
+                                    for u in range(np.uint64(first), np.uint64(last)):  # vectorized
+                                        total_s[chunk, c, u] += alpha_s[chunk, u] * _row_read(color_flat, top_c + u, below, fx, fy)
                             for side in range(2):  # the border, clamped: one by one, [q, first) and [last, segment's end)
                                 for p in range(q if side == 0 else last, first if side == 0 else segment_end - start):
                                     column, row0, fx, fy, _, _ = _tap_corner((start + p) + shift_x, py, last_x, last_y)
