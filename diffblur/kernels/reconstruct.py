@@ -176,6 +176,15 @@ def _tap_alpha(z_x, z_y, v_yx, v_yy, distance, inverse_x, min_radius, extent, in
 
 
 @_inline
+def _keep_tap_alpha(alpha_s, weight_s, chunk, u, z_x, z_y, v_yx, v_yy, distance, inverse_x, min_radius, extent, inverse_extent):
+    """A shifted-row tap's weight for pixel u (`_tap_alpha`): kept for the colours' loop and added
+    to the pixel's weight sum."""
+    alpha = _tap_alpha(z_x, z_y, v_yx, v_yy, distance, inverse_x, min_radius, extent, inverse_extent)
+    alpha_s[chunk, u] = alpha
+    weight_s[chunk, u] += alpha
+
+
+@_inline
 def _row_read(flat, top, below, fx, fy):
     """Bilinear read of a flat image at index `top` (top-left) and `top + below` (the row below), in
     the images' dtype, the arithmetic of `_pair_read`. Along a shifted row consecutive pixels read consecutive
@@ -397,9 +406,7 @@ def _reconstruct_forward(
                                     v_yx = _on_row_read(velocity_flat, top_vx + u, fx)
                                     v_yy = _on_row_read(velocity_flat, top_vy + u, fx)
                                     z_y = _on_row_read(depth_flat, top_z + u, fx)
-                                    alpha = _tap_alpha(z_x_s[chunk, u], z_y, v_yx, v_yy, distance, inverse_x_s[chunk, u], min_radius, extent, inverse_extent)
-                                    alpha_s[chunk, u] = alpha
-                                    weight_s[chunk, u] += alpha
+                                    _keep_tap_alpha(alpha_s, weight_s, chunk, u, z_x_s[chunk, u], z_y, v_yx, v_yy, distance, inverse_x_s[chunk, u], min_radius, extent, inverse_extent)
                                 for c in range(channels):
                                     top_c = np.uint64((b * channels + c) * plane + top)
                                     for u in range(np.uint64(first), np.uint64(last)):  # vectorized
@@ -409,9 +416,7 @@ def _reconstruct_forward(
                                     v_yx = _row_read(velocity_flat, top_vx + u, below, fx, fy)
                                     v_yy = _row_read(velocity_flat, top_vy + u, below, fx, fy)
                                     z_y = _row_read(depth_flat, top_z + u, below, fx, fy)
-                                    alpha = _tap_alpha(z_x_s[chunk, u], z_y, v_yx, v_yy, distance, inverse_x_s[chunk, u], min_radius, extent, inverse_extent)
-                                    alpha_s[chunk, u] = alpha
-                                    weight_s[chunk, u] += alpha
+                                    _keep_tap_alpha(alpha_s, weight_s, chunk, u, z_x_s[chunk, u], z_y, v_yx, v_yy, distance, inverse_x_s[chunk, u], min_radius, extent, inverse_extent)
                                 for c in range(channels):
                                     top_c = np.uint64((b * channels + c) * plane + top)
                                     for u in range(np.uint64(first), np.uint64(last)):  # vectorized
