@@ -25,8 +25,8 @@ Two ways to read the taps, chosen per call by `shifted_rows`:
   row read at one offset v_N t_k, so the reads are contiguous runs of the planar images with one
   pair of bilinear fractions, and the backward's bilinear scatter is one vector pass per row read
   in which no two lanes add to one pixel. Neighbouring tiles with the same NeighborMax and jitter (a pan, any
-  region of one dominant motion) are read as one run. Taps clamped at the image border are read one
-  pixel at a time.
+  region of one dominant motion) are read as one run. The taps of a run's pixels clamped at the
+  image border all read one point (column 0 or W - 1): read once, their classifiers as vectors.
 - Per pixel, otherwise (the "noise" jitter, directions="neighbor_and_own"): each pixel's tap read
   from a buffer of (left, right) pairs, and the backward scatters each tap's gradient to the 4
   pixels it read, which lanes may share, one pixel at a time.
@@ -222,7 +222,7 @@ def _row_read_slopes(flat, top, below, fx, fy):
 
 @_inline
 def _clamped_read_slopes(flat, plane, width, row0, row1, column, fx, fy):
-    """`_row_read_slopes` for one pixel whose tap was clamped at the border: plane is the index of
+    """`_row_read_slopes` at one point (a tap clamped at the border): plane is the index of
     the image plane's first pixel, the right column clamped to the image as `_pairs` does."""
     column1 = min(column + 1, width - 1)
     top_left = flat[plane + row0 * width + column]
@@ -239,7 +239,7 @@ def _shifted_rows(py, shift_x, start, segment, segment_end, height, width, last_
     """A tile segment [segment, segment_end)'s tap at offset (shift_x, py - y): the rows read and
     their fraction, the whole-pixel column shift and the column fraction, whether the row was
     clamped (inside_y 0.0) and the segment's pixels whose reads lie inside the image, as block
-    offsets [first, last). The others (clamped at the border) are read one by one."""
+    offsets [first, last). The others are clamped at the border: column 0 before first, W - 1 from last."""
     clamped_y = min(max(py, 0.0), last_y)
     row0 = np.int64(clamped_y)
     fy = clamped_y - row0
@@ -366,9 +366,10 @@ def _reconstruct_forward(
                 size = end - start
                 count = counts[b, y // tile, start // tile]
                 if count == 0:  # the early-out: the image
-                    for x in range(np.uint64(start), np.uint64(end)):
-                        for c in range(channels):
+                    for c in range(channels):
+                        for x in range(np.uint64(start), np.uint64(end)):  # vectorized: contiguous copies
                             out[b, c, y, x] = color[b, c, y, x]
+                    for x in range(np.uint64(start), np.uint64(end)):
                         weight[b, y, x] = 0.0
                     start = end
                     continue
@@ -421,18 +422,22 @@ def _reconstruct_forward(
                                     top_c = np.uint64((b * channels + c) * plane + top)
                                     for u in range(np.uint64(first), np.uint64(last)):  # vectorized
                                         total_s[chunk, c, u] += alpha_s[chunk, u] * _row_read(color_flat, top_c + u, below, fx, fy)
-                            for side in range(2):  # the border, clamped: one by one, [q, first) and [last, segment's end)
-                                for p in range(q if side == 0 else last, first if side == 0 else segment_end - start):
-                                    column, row0, fx, fy, _, _ = _tap_corner((start + p) + shift_x, py, last_x, last_y)
-                                    row1 = min(row0 + 1, height - 1)
-                                    _, _, v_yx = _clamped_read_slopes(velocity_flat, 2 * b * plane, width, row0, row1, column, fx, fy)
-                                    _, _, v_yy = _clamped_read_slopes(velocity_flat, (2 * b + 1) * plane, width, row0, row1, column, fx, fy)
-                                    _, _, z_y = _clamped_read_slopes(depth_flat, b * plane, width, row0, row1, column, fx, fy)
-                                    alpha = _tap_alpha(z_x_s[chunk, p], z_y, v_yx, v_yy, distance, inverse_x_s[chunk, p], min_radius, extent, inverse_extent)
-                                    weight_s[chunk, p] += alpha
-                                    for c in range(channels):
-                                        _, _, c_y = _clamped_read_slopes(color_flat, (b * channels + c) * plane, width, row0, row1, column, fx, fy)
-                                        total_s[chunk, c, p] += alpha * c_y
+                            for side in range(2):  # the border: [q, first) clamped to column 0, [last, segment's end) to W - 1
+                                lo = q if side == 0 else last
+                                hi = first if side == 0 else segment_end - start
+                                column = 0 if side == 0 else width - 1
+                                if hi <= lo:
+                                    continue
+                                zero = _real(0.0, fy)  # fx: every tap of the run reads the one clamped point
+                                _, _, v_yx = _clamped_read_slopes(velocity_flat, 2 * b * plane, width, row0, row1, column, zero, fy)
+                                _, _, v_yy = _clamped_read_slopes(velocity_flat, (2 * b + 1) * plane, width, row0, row1, column, zero, fy)
+                                _, _, z_y = _clamped_read_slopes(depth_flat, b * plane, width, row0, row1, column, zero, fy)
+                                for u in range(np.uint64(lo), np.uint64(hi)):  # vectorized
+                                    _keep_tap_alpha(alpha_s, weight_s, chunk, u, z_x_s[chunk, u], z_y, v_yx, v_yy, distance, inverse_x_s[chunk, u], min_radius, extent, inverse_extent)
+                                for c in range(channels):
+                                    _, _, c_y = _clamped_read_slopes(color_flat, (b * channels + c) * plane, width, row0, row1, column, zero, fy)
+                                    for u in range(np.uint64(lo), np.uint64(hi)):  # vectorized
+                                        total_s[chunk, c, u] += alpha_s[chunk, u] * c_y
                             segment = segment_end
                         continue
                     own = own_odd * (k % 2)
@@ -468,20 +473,10 @@ def _reconstruct_forward(
 
 
 @_inline
-def _add_gradient(grads, grads_rows, rows, chunk, b, y, x, k, value, batch, stored, plane, width):
-    """Add value to input channel k's gradient at pixel (y, x) of image b: into the planar flat
-    (B, stored, H, W) `grads_rows` when rows = 1 (the pixel's row is its band's own), into chunk
-    `chunk`'s interleaved `grads` else."""
-    if rows != 0:
-        grads_rows[np.uint64((b * stored + k) * plane + y * width + x)] += value  # unsigned: see _block_state
-    else:
-        grads[chunk, b, y, np.uint64(x), k] += value
-
-
-@_inline
 def _add_own(grads, grads_rows, rows, chunk, b, y, start, size, k, value_s, stored, plane, width):
-    """`_add_gradient` of value_s[chunk, p] at the pixels (y, start + p), p < size: for shifted rows
-    one contiguous vector add into the band's own row."""
+    """Add value_s[chunk, p] to input channel k's gradient at the pixels (y, start + p) of image b,
+    p < size: into the planar flat (B, stored, H, W) `grads_rows` when rows = 1 (one contiguous
+    vector add into the band's own row), into chunk `chunk`'s interleaved `grads` else."""
     if rows != 0:
         at = np.uint64((b * stored + k) * plane + y * width + start)
         for p in range(np.uint64(size)):  # vectorized
@@ -544,55 +539,50 @@ def _scatter_rows(grads_rows, top_at, bottom_at, column0, column1, fx, fy, grad)
 
 
 @_inline
-def _border_tap_backward(
-    color_flat, velocity_flat, depth_flat, grads_rows, margins, bands, reach, color, b, chunk, p, px, py, t, distance, min_radius, extent, scatter,
-    g_total_s, g_out_s, z_x_s, speed_x_s, inverse_x_s, g_speed_x_s, g_z_x_s, g_nx_s, g_ny_s, g_speed_n_s,
+def _border_run_backward(
+    color_flat, velocity_flat, depth_flat, color, b, chunk, lo, hi, column, row0, fy, inside_y, t, distance, min_radius, extent,
+    g_total_s, g_out_s, z_x_s, speed_x_s, inverse_x_s, g_alpha_s, slope_y_s, alpha_s, g_speed_x_s, g_z_x_s, g_ny_s, g_speed_n_s,
 ):
-    """One pixel's tap on the shifted rows' clamped border, the general path's arithmetic: the
-    classifiers' derivatives into the pixel's sums, the reads' gradients where `_row_target` puts
-    them; scatter: the inputs whose reads' gradients are wanted, 1 colour + 2 velocity + 4 depth.
-    Fewer than 30 arguments: past that Python passes them as *args, which numba cannot inline."""
-    batch, channels, height, width = color.shape
-    last_x = width - 1.0
-    last_y = height - 1.0
-    inverse_extent = _real(1.0, extent) / extent
+    """The shifted rows' border pixels [lo, hi) of a segment, whose taps are clamped to one column
+    (fx = 0: no gradient along x) and so read one point: its values read once, the classifiers'
+    derivatives as vectors into the pixels' sums, each pixel's alpha into alpha_s (for the colours'
+    scatter). Returns the sums of the V[Y] and Z[Y] gradients, which all go to that point. Fewer
+    than 30 arguments: past that Python passes them as *args, which numba cannot inline."""
+    _, channels, height, width = color.shape
     plane = height * width
-    stored = channels + 3
-    column, row0, fx, fy, inside_x, inside_y = _tap_corner(px, py, last_x, last_y)
     row1 = min(row0 + 1, height - 1)
-    column1 = min(column + 1, width - 1)
-    g_alpha = -g_out_s[chunk, p]
-    slope_x = 0.0
-    slope_y = 0.0
+    inverse_extent = _real(1.0, extent) / extent
+    zero = _real(0.0, fy)
+    for u in range(np.uint64(lo), np.uint64(hi)):
+        g_alpha_s[chunk, u] = -g_out_s[chunk, u]
+        slope_y_s[chunk, u] = zero
     for c in range(channels):
-        d_x, d_y, c_y = _clamped_read_slopes(color_flat, (b * channels + c) * plane, width, row0, row1, column, fx, fy)
-        g_total = g_total_s[chunk, c, p]
-        g_alpha += g_total * c_y
-        slope_x += g_total * d_x
-        slope_y += g_total * d_y
-    slope_vxx, slope_vxy, v_yx = _clamped_read_slopes(velocity_flat, 2 * b * plane, width, row0, row1, column, fx, fy)
-    slope_vyx, slope_vyy, v_yy = _clamped_read_slopes(velocity_flat, (2 * b + 1) * plane, width, row0, row1, column, fx, fy)
-    slope_zx, slope_zy, z_y = _clamped_read_slopes(depth_flat, b * plane, width, row0, row1, column, fx, fy)
-    alpha, g_v_yx, g_v_yy, g_z_y, g_speed_x, g_z_x, g_distance = _tap_gradients(
-        z_x_s[chunk, p], speed_x_s[chunk, p], inverse_x_s[chunk, p], distance, g_alpha, v_yx, v_yy, z_y, min_radius, extent, inverse_extent
-    )
-    g_fx = alpha * slope_x + g_v_yx * slope_vxx + g_v_yy * slope_vyx + g_z_y * slope_zx
-    g_fy = alpha * slope_y + g_v_yx * slope_vxy + g_v_yy * slope_vyy + g_z_y * slope_zy
-    g_speed_x_s[chunk, p] += g_speed_x
-    g_z_x_s[chunk, p] += g_z_x
-    g_nx_s[chunk, p] += g_fx * t * inside_x
-    g_ny_s[chunk, p] += g_fy * t * inside_y
-    g_speed_n_s[chunk, p] += g_distance * abs(t)
-    top_at, top_stride = _row_target(bands, chunk, reach, b, row0, stored, plane, width, margins)
-    bottom_at, bottom_stride = _row_target(bands, chunk, reach, b, row1, stored, plane, width, margins)
-    if scatter & 1:
-        for c in range(channels):
-            _scatter_rows(grads_rows, top_at + c * top_stride, bottom_at + c * bottom_stride, column, column1, fx, fy, alpha * g_total_s[chunk, c, p])
-    if scatter & 2:
-        _scatter_rows(grads_rows, top_at + channels * top_stride, bottom_at + channels * bottom_stride, column, column1, fx, fy, g_v_yx)
-        _scatter_rows(grads_rows, top_at + (channels + 1) * top_stride, bottom_at + (channels + 1) * bottom_stride, column, column1, fx, fy, g_v_yy)
-    if scatter & 4:
-        _scatter_rows(grads_rows, top_at + (channels + 2) * top_stride, bottom_at + (channels + 2) * bottom_stride, column, column1, fx, fy, g_z_y)
+        _, d_y, c_y = _clamped_read_slopes(color_flat, (b * channels + c) * plane, width, row0, row1, column, zero, fy)
+        for u in range(np.uint64(lo), np.uint64(hi)):  # vectorized
+            g_total = g_total_s[chunk, c, u]
+            g_alpha_s[chunk, u] += g_total * c_y
+            slope_y_s[chunk, u] += g_total * d_y
+    _, slope_vxy, v_yx = _clamped_read_slopes(velocity_flat, 2 * b * plane, width, row0, row1, column, zero, fy)
+    _, slope_vyy, v_yy = _clamped_read_slopes(velocity_flat, (2 * b + 1) * plane, width, row0, row1, column, zero, fy)
+    _, slope_zy, z_y = _clamped_read_slopes(depth_flat, b * plane, width, row0, row1, column, zero, fy)
+    along = abs(t)
+    g_vx_sum = zero
+    g_vy_sum = zero
+    g_z_sum = zero
+    for u in range(np.uint64(lo), np.uint64(hi)):  # vectorized
+        alpha, g_v_yx, g_v_yy, g_z_y, g_speed_x, g_z_x, g_distance = _tap_gradients(
+            z_x_s[chunk, u], speed_x_s[chunk, u], inverse_x_s[chunk, u], distance, g_alpha_s[chunk, u], v_yx, v_yy, z_y, min_radius, extent, inverse_extent
+        )
+        g_fy = alpha * slope_y_s[chunk, u] + g_v_yx * slope_vxy + g_v_yy * slope_vyy + g_z_y * slope_zy
+        alpha_s[chunk, u] = alpha
+        g_speed_x_s[chunk, u] += g_speed_x
+        g_z_x_s[chunk, u] += g_z_x
+        g_ny_s[chunk, u] += g_fy * t * inside_y
+        g_speed_n_s[chunk, u] += g_distance * along
+        g_vx_sum += g_v_yx
+        g_vy_sum += g_v_yy
+        g_z_sum += g_z_y
+    return g_vx_sum, g_vy_sum, g_z_sum
 
 
 @_jit
@@ -647,10 +637,11 @@ def _reconstruct_backward(
                 end = _block_end(counts, b, y // tile, start, width, tile)
                 size = end - start
                 count = counts[b, y // tile, start // tile]
-                if count == 0:  # the early-out: out = C[X]
-                    for x in range(start, end):
-                        for c in range(channels):
-                            _add_gradient(grads, grads_rows, rows, chunk, b, y, x, c, grad_out[b, c, y, np.uint64(x)], batch, stored, plane, width)
+                if count == 0:  # the early-out: out = C[X], the colour's gradient is the output's
+                    for c in range(channels):
+                        for p in range(size):  # vectorized
+                            value_s[chunk, p] = grad_out[b, c, y, np.uint64(start + p)]
+                        _add_own(grads, grads_rows, rows, chunk, b, y, start, size, c, value_s, stored, plane, width)
                     start = end
                     continue
                 _block_state(velocity, depth, neighbors, jitter, b, jb, y, start, end, tile, min_radius, chunk, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s)
@@ -767,12 +758,31 @@ def _reconstruct_backward(
                                 _add_rows(grads_rows, top_at + (channels + 1) * top_stride, bottom_at + (channels + 1) * bottom_stride, fx_r, fy_r, g_v_yy_s, chunk, first, last)
                             if scatter_depth != 0:
                                 _add_rows(grads_rows, top_at + (channels + 2) * top_stride, bottom_at + (channels + 2) * bottom_stride, fx_r, fy_r, g_z_y_s, chunk, first, last)
-                            for side in range(2):  # the border, clamped: one by one, [q, first) and [last, segment's end)
-                                for p in range(q if side == 0 else last, first if side == 0 else segment_end - start):
-                                    _border_tap_backward(
-                                        color_flat, velocity_flat, depth_flat, grads_rows, margins, bands, reach, color, b, chunk, p, (start + p) + shift_x, py, t, distance, min_radius, extent, scatter,
-                                        g_total_s, g_out_s, z_x_s, speed_x_s, inverse_x_s, g_speed_x_s, g_z_x_s, g_nx_s, g_ny_s, g_speed_n_s,
-                                    )
+                            for side in range(2):  # the border: [q, first) clamped to column 0, [last, segment's end) to W - 1
+                                lo = q if side == 0 else last
+                                hi = first if side == 0 else segment_end - start
+                                column = 0 if side == 0 else width - 1
+                                if hi <= lo:
+                                    continue
+                                g_vx_sum, g_vy_sum, g_z_sum = _border_run_backward(
+                                    color_flat, velocity_flat, depth_flat, color, b, chunk, lo, hi, column, row0, fy_r, inside_y_r, t_r, distance_r, min_radius, extent,
+                                    g_total_s, g_out_s, z_x_s, speed_x_s, inverse_x_s, g_alpha_s, slope_y_s, alpha_s, g_speed_x_s, g_z_x_s, g_ny_s, g_speed_n_s,
+                                )
+                                # every tap of the run read the one point: its gradients go there, summed
+                                top_at, top_stride = _row_target(bands, chunk, reach, b, row0, stored, plane, width, margins)
+                                bottom_at, bottom_stride = _row_target(bands, chunk, reach, b, row1, stored, plane, width, margins)
+                                zero = _real(0.0, fy_r)
+                                if scatter_color != 0:
+                                    for c in range(channels):
+                                        g_color = zero
+                                        for u in range(np.uint64(lo), np.uint64(hi)):  # vectorized
+                                            g_color += alpha_s[chunk, u] * g_total_s[chunk, c, u]
+                                        _scatter_rows(grads_rows, top_at + c * top_stride, bottom_at + c * bottom_stride, column, column, zero, fy_r, g_color)
+                                if scatter_velocity != 0:
+                                    _scatter_rows(grads_rows, top_at + channels * top_stride, bottom_at + channels * bottom_stride, column, column, zero, fy_r, g_vx_sum)
+                                    _scatter_rows(grads_rows, top_at + (channels + 1) * top_stride, bottom_at + (channels + 1) * bottom_stride, column, column, zero, fy_r, g_vy_sum)
+                                if scatter_depth != 0:
+                                    _scatter_rows(grads_rows, top_at + (channels + 2) * top_stride, bottom_at + (channels + 2) * bottom_stride, column, column, zero, fy_r, g_z_sum)
                             segment = segment_end
                         continue
                     own = own_odd * (k % 2)
