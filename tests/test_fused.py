@@ -144,6 +144,20 @@ def test_shifted_row_bands_cover_every_row_once_and_the_taps_reach(batch, height
     assert min(height, largest_y + 1) <= reach <= height
 
 
+@pytest.mark.parametrize(("chunks", "threads"), [(8, 2), (9, 2), (12, 4), (3, 8), (1, 1)])
+def test_band_turns_give_each_thread_bands_from_all_over_the_image(chunks, threads):
+    """numba's workqueue layer gives each of T threads one contiguous part of a parallel loop's range
+    (len // T iterations, the last thread the rest): in `_band_turns`' order each part holds every
+    T-th band, so motion in one region of the image is shared by all threads."""
+    turns = reconstruct_kernel._band_turns(chunks, threads)
+    assert sorted(turns.tolist()) == list(range(chunks))  # every band once
+    share = chunks // threads
+    if share:
+        for thread in range(threads - 1):
+            part = turns[thread * share : (thread + 1) * share]
+            assert np.all(np.diff(part) == threads) and part[0] == thread
+
+
 def test_shifted_rows_with_motion_across_several_bands():
     """Vertical motion longer than a band is tall: a tap's gradient lands in bands above and below
     its own (each band's margins, added after the kernel), on a batch of images."""

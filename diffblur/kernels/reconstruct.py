@@ -588,7 +588,7 @@ def _border_run_backward(
 @_jit
 def _reconstruct_backward(
     pairs, color_flat, velocity_flat, depth_flat, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, rows, order,
-    scatter_color, scatter_velocity, scatter_depth, bands, reach, out, weight, grad_out, grads, grads_rows, margins, grad_neighbors,
+    scatter_color, scatter_velocity, scatter_depth, bands, turns, reach, out, weight, grad_out, grads, grads_rows, margins, grad_neighbors,
     jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, g_total_s, g_out_s,
     column_s, row_s, t_s, fx_s, fy_s, inside_x_s, inside_y_s, g_alpha_s, slope_x_s, slope_y_s, alpha_s, g_v_yx_s, g_v_yy_s, g_z_y_s,
     g_speed_x_s, g_z_x_s, g_vx_s, g_vy_s, g_length_x_s, g_nx_s, g_ny_s, g_speed_n_s, value_s,
@@ -596,8 +596,9 @@ def _reconstruct_backward(
     """The forward's layout (blocks of one row as vectors, scratch arguments) for the hand-written
     backward, for the inputs whose scatter_* flag is 1 (ints: see the note above on aliases); the
     other inputs' gradients come out incomplete. A chunk is the rows order[bands[chunk]:bands[chunk
-    + 1]]. grad_neighbors: (chunks, B, 2, TH, TW) zeros, or (1, B, 2, TH, TW) for shifted rows (a
-    band owns its tile rows); *_s scratch: (chunks, >= _BLOCK), g_total_s (chunks, C, >= _BLOCK).
+    + 1]]; the parallel loop takes the chunks in the order `turns` (`_band_turns`). grad_neighbors:
+    (chunks, B, 2, TH, TW) zeros, or (1, B, 2, TH, TW) for shifted rows (a band owns its tile rows);
+    *_s scratch: (chunks, >= _BLOCK), g_total_s (chunks, C, >= _BLOCK).
 
     rows = 0, per pixel (pairs): per tap index k one vector loop places the taps, one per channel
     reads the colours, one runs the classifiers' derivatives; then a scalar loop scatters the
@@ -616,7 +617,8 @@ def _reconstruct_backward(
     last_x = width - 1.0
     last_y = height - 1.0
     scatter = scatter_color + 2 * scatter_velocity + 4 * scatter_depth
-    for chunk in numba.prange(chunks):
+    for turn in numba.prange(chunks):
+        chunk = turns[turn]  # `_band_turns`
         slot = np.int64(chunk) % grad_neighbors.shape[0]  # shifted rows: one shared buffer, a band owns its tile rows
         if rows != 0:  # a band's own rows of the output and its margins start at zero
             image = bands[chunk] // height
@@ -1093,9 +1095,18 @@ def reconstruct_backward_stacked(
     return _summed(buffers, color, 0, color.shape[1] + 3), grad_neighbors if needs[1] else None
 
 
-#: Bands per thread of the shifted-row backward: the threads take the bands as they come free, so a
+#: Bands per thread of the shifted-row backward: several, taken in turns (`_band_turns`), so that a
 #: scene whose motion sits in one part of the image still keeps every core busy.
 _BANDS_PER_THREAD = 4
+
+
+def _band_turns(chunks: int, threads: int) -> np.ndarray:
+    """The order the shifted-row backward's parallel loop visits its bands in: 0, T, 2T, ..., 1, T + 1,
+    ... for T threads. numba's default threading layer (workqueue) gives each thread one contiguous
+    part of a parallel loop's range, whatever the chunk size; in this order each thread's part is
+    every T-th band, spread over the image. (With chunk size 1, as `_backward_chunks` sets it, a
+    layer that schedules as the threads come free, such as TBB, may hand them out otherwise.)"""
+    return np.argsort(np.arange(chunks) % threads, kind="stable").astype(np.int64)
 
 
 def _bands(neighbors: np.ndarray, height: int, tile: int, threads: int) -> tuple[np.ndarray, int]:
@@ -1139,11 +1150,12 @@ def _backward_chunks(color, velocity, depth, neighbors, counts, jitter, out, wei
         order = row_order(batch * height)
     need_color, need_velocity, need_depth = (bool(need) for need in needs)
     real = color.dtype.type  # the kernels compute in the images' precision
-    settings = (int(tile), real(soft_z_extent), real(min_radius), int(own_odd), int(rows), order, int(need_color), int(need_velocity), int(need_depth), bands, reach)
+    turns = _band_turns(chunks, threads)
+    settings = (int(tile), real(soft_z_extent), real(min_radius), int(own_odd), int(rows), order, int(need_color), int(need_velocity), int(need_depth), bands, turns, reach)
     scratch = scratch_for(ReconstructBackwardScratch, chunks, channels, color.dtype)
     pairs = _no_pairs(color) if rows else _pairs(color, velocity, depth)
     arrays = (pairs, color.reshape(-1), velocity.reshape(-1), depth.reshape(-1), color, velocity, depth, neighbors, counts, jitter)
-    previous = numba.set_parallel_chunksize(1)  # the threads take the bands as they come free
+    previous = numba.set_parallel_chunksize(1)  # one band per division, for the layers that schedule dynamically
     try:
         _reconstruct_backward(*arrays, *settings, out, weight, grad_out, grads, buffer, margins, grad_neighbors, *scratch)
     finally:
