@@ -252,6 +252,18 @@ def _shifted_rows(py, shift_x, start, segment, segment_end, height, width, last_
 
 
 @_inline
+def _border_run(side, q, first, last, end, width):
+    """A shifted-row segment [q, end)'s pixels whose taps fall off the image (block offsets [lo, hi))
+    and the column they are clamped to: side 0 those before `first` (column 0), side 1 those from
+    `last` on (column W - 1). Selects and one return: a tuple merged from two returns, or chosen
+    by a conditional expression, is an alias to numba's parallel loops (the backward ran 4x slower)."""
+    lo = q if side == 0 else last
+    hi = first if side == 0 else end
+    column = 0 if side == 0 else width - 1
+    return lo, hi, column
+
+
+@_inline
 def _segment_end(segment, start, end, tile, chunk, jitter_s, nx_s, ny_s):
     """Where the shifted-row segment that starts at column `segment` of the block [start, end) ends:
     the run of whole tiles whose taps share its offsets (the same NeighborMax and jitter, as over a
@@ -423,9 +435,7 @@ def _reconstruct_forward(
                                     for u in range(np.uint64(first), np.uint64(last)):  # vectorized
                                         total_s[chunk, c, u] += alpha_s[chunk, u] * _row_read(color_flat, top_c + u, below, fx, fy)
                             for side in range(2):  # the border: [q, first) clamped to column 0, [last, segment's end) to W - 1
-                                lo = q if side == 0 else last
-                                hi = first if side == 0 else segment_end - start
-                                column = 0 if side == 0 else width - 1
+                                lo, hi, column = _border_run(side, q, first, last, segment_end - start, width)
                                 if hi <= lo:
                                     continue
                                 zero = _real(0.0, fy)  # fx: every tap of the run reads the one clamped point
@@ -761,9 +771,7 @@ def _reconstruct_backward(
                             if scatter_depth != 0:
                                 _add_rows(grads_rows, top_at + (channels + 2) * top_stride, bottom_at + (channels + 2) * bottom_stride, fx_r, fy_r, g_z_y_s, chunk, first, last)
                             for side in range(2):  # the border: [q, first) clamped to column 0, [last, segment's end) to W - 1
-                                lo = q if side == 0 else last
-                                hi = first if side == 0 else segment_end - start
-                                column = 0 if side == 0 else width - 1
+                                lo, hi, column = _border_run(side, q, first, last, segment_end - start, width)
                                 if hi <= lo:
                                     continue
                                 g_vx_sum, g_vy_sum, g_z_sum = _border_run_backward(
