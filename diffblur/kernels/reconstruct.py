@@ -1114,7 +1114,7 @@ def _band_turns(chunks: int, threads: int) -> np.ndarray:
     part of a parallel loop's range, whatever the chunk size; in this order each thread's part is
     every T-th band, spread over the image. (With chunk size 1, as `_backward_chunks` sets it, a
     layer that schedules as the threads come free, such as TBB, may hand them out otherwise.)"""
-    return np.argsort(np.arange(chunks) % threads, kind="stable").astype(np.int64)
+    return row_order(chunks, threads)
 
 
 def _bands(neighbors: np.ndarray, height: int, tile: int, threads: int) -> tuple[np.ndarray, int]:

@@ -100,9 +100,10 @@ def read_only(*arrays: np.ndarray) -> list[np.ndarray]:
     return views
 
 
-def row_order(rows: int) -> np.ndarray:
-    """Rows 0, 16, 32, ..., 1, 17, ...: the order the parallel loops visit the B * H rows in."""
-    return np.argsort(np.arange(rows) % _ROW_INTERLEAVE, kind="stable").astype(np.int64)
+def row_order(rows: int, interleave: int = _ROW_INTERLEAVE) -> np.ndarray:
+    """Rows 0, 16, 32, ..., 1, 17, ... (for an interleave of 16): the order the parallel loops visit
+    the B * H rows in."""
+    return np.argsort(np.arange(rows) % interleave, kind="stable").astype(np.int64)
 
 
 class _Locked:
