@@ -618,7 +618,7 @@ def _reconstruct_backward(
     reads, and the scatter as one contiguous vector pass per row read (`_add_row`) into grads_rows,
     a flat buffer that the kernel zeroes: the (B, C + 3, H, W) output, each band's own rows, then
     from index `margins` on the bands' margins, (chunks, C + 3, 2 reach, W) (`_row_target`)."""
-    batch, channels, height, width = color.shape
+    _, channels, height, width = color.shape
     stored = channels + 3
     plane = height * width
     jitter_batch = jitter.shape[0]
@@ -626,7 +626,6 @@ def _reconstruct_backward(
     chunks = bands.shape[0] - 1
     last_x = width - 1.0
     last_y = height - 1.0
-    scatter = scatter_color + 2 * scatter_velocity + 4 * scatter_depth
     for turn in numba.prange(chunks):
         chunk = turns[turn]  # `_band_turns`
         slot = np.int64(chunk) % grad_neighbors.shape[0]  # shifted rows: one shared buffer, a band owns its tile rows
