@@ -122,22 +122,9 @@ def _floored_inverse(speed):
 
 @_inline
 def _cone(distance, inverse):
-    ratio = distance * inverse
-    one = _real(1.0, ratio)
-    u = one - ratio
-    return _real(0.0, ratio) if u < 0.0 else (one if u > 1.0 else u)
-
-
-@_inline
-def _cone_grad(distance, speed, inverse, grad):
-    """d cone / d distance and d cone / d speed, times grad (the pure op's one-sided rules). One
-    return of selects: a tuple merged from two returns is an alias to numba's parallel loops."""
-    ratio = distance * inverse
-    u = _real(1.0, ratio) - ratio
-    zero = _real(0.0, grad * ratio)
-    grad = grad if (u >= 0.0) & (u <= 1.0) else zero
-    d_speed = grad * ratio * inverse if speed >= _real(EPSILON, speed) else zero
-    return -grad * inverse, d_speed
+    """max(1 - distance / speed, 0): distance >= 0 (|t| times a length), so it is never above 1."""
+    u = _real(1.0, distance * inverse) - distance * inverse
+    return _real(0.0, u) if u < 0.0 else u
 
 
 @_inline
@@ -150,15 +137,16 @@ def _cylinder(distance, inverse):
 
 
 @_inline
-def _cylinder_grad(distance, speed, inverse, grad):
-    """As `_cone_grad`, for the cylinder."""
+def _classifier_slope(distance, inverse, depth_weight, other_cylinder):
+    """d / d ratio of depth_weight * cone + 2 cylinder * other_cylinder, both at ratio = distance *
+    inverse (the pure op's one-sided rules: zero where a clamp holds). d ratio / d distance is
+    inverse and d ratio / d speed is -ratio * inverse, so one slope serves both derivatives."""
     ratio = distance * inverse
-    span = _real(_INVERSE_CYLINDER_SPAN, ratio)
-    q = (ratio - _real(CYLINDER_INNER, ratio)) * span
-    zero = _real(0.0, grad * ratio)
-    d_q = grad * (_real(-6.0, ratio) * q * (_real(1.0, ratio) - q)) * span if (q >= 0.0) & (q <= 1.0) else zero
-    d_speed = -d_q * ratio * inverse if speed >= _real(EPSILON, speed) else zero
-    return d_q * inverse, d_speed
+    zero = _real(0.0, ratio)
+    q = (ratio - _real(CYLINDER_INNER, ratio)) * _real(_INVERSE_CYLINDER_SPAN, ratio)
+    cone_slope = depth_weight if _real(1.0, ratio) - ratio >= 0.0 else zero  # d cone / d ratio = -1
+    cylinder_slope = other_cylinder * (q - q * q) if (q >= 0.0) & (q <= 1.0) else zero  # d cylinder / d q = -6 q (1 - q)
+    return _real(-12.0 * _INVERSE_CYLINDER_SPAN, ratio) * cylinder_slope - cone_slope
 
 
 
@@ -294,20 +282,16 @@ def _tap_gradients(z_x, speed_x, inverse_x, distance, g_alpha, v_yx, v_yy, z_y, 
     cylinder_x = _cylinder(distance, inverse_x)
     two = _real(2.0, distance * inverse_x)
     alpha = front * cone_y + behind * cone_x + cylinder_y * cylinder_x * two
-    g_front = g_alpha * cone_y
-    g_behind = g_alpha * cone_x
-    zero = _real(0.0, g_front * inverse_extent)
-    front_slope = g_front * inverse_extent if (z_y - z_x >= 0.0) & (z_y - z_x <= extent) else zero
-    behind_slope = g_behind * inverse_extent if (z_x - z_y >= 0.0) & (z_x - z_y <= extent) else zero
-    g_distance, g_speed_y = _cone_grad(distance, speed_y, inverse_y, g_alpha * front)
-    d_distance, g_speed_x = _cone_grad(distance, speed_x, inverse_x, g_alpha * behind)
-    g_distance += d_distance
-    d_distance, d_speed = _cylinder_grad(distance, speed_y, inverse_y, g_alpha * two * cylinder_x)
-    g_distance += d_distance
-    g_speed_y += d_speed
-    d_distance, d_speed = _cylinder_grad(distance, speed_x, inverse_x, g_alpha * two * cylinder_y)
-    g_distance += d_distance
-    g_speed_x += d_speed
+    zero = _real(0.0, alpha)
+    front_slope = cone_y if (z_y - z_x >= 0.0) & (z_y - z_x <= extent) else zero  # times g_alpha / extent
+    behind_slope = cone_x if (z_x - z_y >= 0.0) & (z_x - z_y <= extent) else zero
+    g_z_y = g_alpha * inverse_extent * (behind_slope - front_slope)
+    d_distance_y = g_alpha * inverse_y * _classifier_slope(distance, inverse_y, front, cylinder_x)
+    d_distance_x = g_alpha * inverse_x * _classifier_slope(distance, inverse_x, behind, cylinder_y)
+    floor = _real(EPSILON, speed_y)  # below it the inverse is floored: no gradient to the speed
+    g_speed_y = -(distance * inverse_y) * d_distance_y if speed_y >= floor else zero
+    g_speed_x = -(distance * inverse_x) * d_distance_x if speed_x >= floor else zero
+    g_distance = d_distance_y + d_distance_x
     # V[Y] through speed_y = max(|V[Y]|, min_radius): d |V| / d V = V / |V|, with inverse_y for 1 / |V|
     # (equal where the speed is at least EPSILON; below it the classifiers' g_speed_y is zero).
     moving = (length_y >= min_radius) & (length_y > 0.0)
@@ -315,7 +299,7 @@ def _tap_gradients(z_x, speed_x, inverse_x, distance, g_alpha, v_yx, v_yy, z_y, 
     g_over_length = g_speed_y * inverse_y
     g_v_yx = g_over_length * v_yx if moving else zero
     g_v_yy = g_over_length * v_yy if moving else zero
-    return alpha, g_v_yx, g_v_yy, behind_slope - front_slope, g_speed_x, front_slope - behind_slope, g_distance
+    return alpha, g_v_yx, g_v_yy, g_z_y, g_speed_x, -g_z_y, g_distance
 
 
 @_inline
@@ -329,7 +313,7 @@ def _block_state(velocity, depth, neighbors, jitter, b, jb, y, start, end, tile,
         nx = np.float64(neighbors[b, 0, tile_y, tile_x])
         ny = np.float64(neighbors[b, 1, tile_y, tile_x])
         speed_n = _length(nx, ny)
-        for p in range(max(tile_x * tile, start) - start, min((tile_x + 1) * tile, end) - start):
+        for p in range(np.uint64(max(tile_x * tile, start) - start), np.uint64(min((tile_x + 1) * tile, end) - start)):  # vectorized: unsigned, see below
             nx_s[chunk, p] = nx
             ny_s[chunk, p] = ny
             speed_n_s[chunk, p] = speed_n
@@ -633,9 +617,9 @@ def _reconstruct_backward(
             image = bands[chunk] // height
             for channel in range(stored):
                 own = (image * stored + channel) * plane + (bands[chunk] - image * height) * width
-                for index in range(own, own + (bands[chunk + 1] - bands[chunk]) * width):
+                for index in range(np.uint64(own), np.uint64(own + (bands[chunk + 1] - bands[chunk]) * width)):  # unsigned: a memset, not a scatter
                     grads_rows[index] = 0.0
-            for index in range(margins + chunk * stored * 2 * reach * width, margins + (chunk + 1) * stored * 2 * reach * width):
+            for index in range(np.uint64(margins + chunk * stored * 2 * reach * width), np.uint64(margins + (chunk + 1) * stored * 2 * reach * width)):
                 grads_rows[index] = 0.0
         for i in range(bands[chunk], bands[chunk + 1]):
             row = order[i]
@@ -887,7 +871,7 @@ def _reconstruct_backward(
                 for tile_x in range(start // tile, (end - 1) // tile + 1):  # NeighborMax's: one sum per tile
                     g_nx = 0.0
                     g_ny = 0.0
-                    for p in range(max(tile_x * tile, start) - start, min((tile_x + 1) * tile, end) - start):
+                    for p in range(np.uint64(max(tile_x * tile, start) - start), np.uint64(min((tile_x + 1) * tile, end) - start)):  # vectorized: unsigned
                         g_nx += g_nx_s[chunk, p]
                         g_ny += g_ny_s[chunk, p]
                     grad_neighbors[slot, b, 0, tile_y, tile_x] += g_nx
