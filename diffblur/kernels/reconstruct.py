@@ -526,9 +526,10 @@ def _add_rows(grads_rows, top_at, bottom_at, fx, fy, value_s, chunk, first, last
 def _scatter_rows(grads_rows, top_at, bottom_at, column0, column1, fx, fy, grad):
     """`_scatter_chunk` into two rows of the flat buffer, the top row's first pixel at index top_at,
     the bottom row's at bottom_at (`_row_target`'s)."""
-    grads_rows[top_at + column0] += grad * (1.0 - fx) * (1.0 - fy)
-    grads_rows[top_at + column1] += grad * fx * (1.0 - fy)
-    grads_rows[bottom_at + column0] += grad * (1.0 - fx) * fy
+    one = _real(1.0, fx)
+    grads_rows[top_at + column0] += grad * (one - fx) * (one - fy)
+    grads_rows[top_at + column1] += grad * fx * (one - fy)
+    grads_rows[bottom_at + column0] += grad * (one - fx) * fy
     grads_rows[bottom_at + column1] += grad * fx * fy
 
 

@@ -341,11 +341,23 @@ def _pair_read_slopes(pairs, index, below, fx, fy):
 @_inline
 def _scatter_chunk(grads, chunk, b, channel, row0, row1, column0, column1, fx, fy, grad):
     """Add `grad` to chunk `chunk` of grads (chunks, B, H, W, K) at the 4 corners of a bilinear read,
-    each with its weight; indexed rather than sliced (a slice is an alias)."""
-    grads[chunk, b, row0, column0, channel] += grad * (1.0 - fx) * (1.0 - fy)
-    grads[chunk, b, row0, column1, channel] += grad * fx * (1.0 - fy)
-    grads[chunk, b, row1, column0, channel] += grad * (1.0 - fx) * fy
-    grads[chunk, b, row1, column1, channel] += grad * fx * fy
+    each with its weight; indexed rather than sliced (a slice is an alias). The weights are in the
+    fractions' precision (a float64 1.0 turns each float32 add into two conversions) and the
+    indices unsigned (a signed one carries numba's negative-index wraparound)."""
+    one = _real(1.0, fx)
+    right = grad * fx
+    left = grad * (one - fx)
+    c = np.uint64(chunk)
+    image = np.uint64(b)
+    k = np.uint64(channel)
+    top = np.uint64(row0)
+    bottom = np.uint64(row1)
+    first = np.uint64(column0)
+    second = np.uint64(column1)
+    grads[c, image, top, first, k] += left * (one - fy)
+    grads[c, image, top, second, k] += right * (one - fy)
+    grads[c, image, bottom, first, k] += left * fy
+    grads[c, image, bottom, second, k] += right * fy
 
 
 # Each scratch row is followed by 1 KiB that no thread touches. Side by side, one thread's row next to
