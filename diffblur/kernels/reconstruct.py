@@ -123,7 +123,8 @@ def _floored_inverse(speed):
 @_inline
 def _cone(distance, inverse):
     """max(1 - distance / speed, 0): distance >= 0 (|t| times a length), so it is never above 1."""
-    u = _real(1.0, distance * inverse) - distance * inverse
+    ratio = distance * inverse
+    u = _real(1.0, ratio) - ratio
     return _real(0.0, u) if u < 0.0 else u
 
 

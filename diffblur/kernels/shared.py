@@ -347,17 +347,17 @@ def _scatter_chunk(grads, chunk, b, channel, row0, row1, column0, column1, fx, f
     one = _real(1.0, fx)
     right = grad * fx
     left = grad * (one - fx)
-    c = np.uint64(chunk)
+    part = np.uint64(chunk)
     image = np.uint64(b)
     k = np.uint64(channel)
     top = np.uint64(row0)
     bottom = np.uint64(row1)
     first = np.uint64(column0)
     second = np.uint64(column1)
-    grads[c, image, top, first, k] += left * (one - fy)
-    grads[c, image, top, second, k] += right * (one - fy)
-    grads[c, image, bottom, first, k] += left * fy
-    grads[c, image, bottom, second, k] += right * fy
+    grads[part, image, top, first, k] += left * (one - fy)
+    grads[part, image, top, second, k] += right * (one - fy)
+    grads[part, image, bottom, first, k] += left * fy
+    grads[part, image, bottom, second, k] += right * fy
 
 
 # Each scratch row is followed by 1 KiB that no thread touches. Side by side, one thread's row next to
