@@ -360,10 +360,12 @@ def _scatter_chunk(grads, chunk, b, channel, row0, row1, column0, column1, fx, f
     grads[part, image, bottom, second, k] += right * fy
 
 
-# Each scratch row is followed by 1 KiB that no thread touches. Side by side, one thread's row next to
-# another's, the backward on 2 threads took 365 ms at 720p instead of 250 (a gap of 256 B: 355 ms);
-# likely the prefetcher running ahead of one thread's row into the other's.
-_SCRATCH_GAP = 128
+# Each scratch row is followed by 1024 elements (4 KiB of float32) that no thread touches. Side by
+# side, one thread's row next to another's, the float64 backward on 2 threads took 365 ms at 720p
+# instead of 250 with a 1 KiB gap (256 B: 355 ms); likely the prefetcher running ahead of one
+# thread's row into the other's. With float32 scratch 128 elements were 512 B: the per-pixel
+# backward 246.7 against 236.8 ms with 1024 (720p, median of 7, interleaved).
+_SCRATCH_GAP = 1024
 
 
 
