@@ -296,7 +296,6 @@ def _tap_gradients(z_x, speed_x, inverse_x, distance, g_alpha, v_yx, v_yy, z_y, 
     # V[Y] through speed_y = max(|V[Y]|, min_radius): d |V| / d V = V / |V|, with inverse_y for 1 / |V|
     # (equal where the speed is at least EPSILON; below it the classifiers' g_speed_y is zero).
     moving = (length_y >= min_radius) & (length_y > 0.0)
-    zero = _real(0.0, g_speed_y * v_yx)
     g_over_length = g_speed_y * inverse_y
     g_v_yx = g_over_length * v_yx if moving else zero
     g_v_yy = g_over_length * v_yy if moving else zero
