@@ -55,6 +55,7 @@ from diffblur.kernels.shared import (
     _block_end,
     _deinterleave_sum,
     _inline,
+    _llvm_inline,
     _jit,
     _length,
     _pair_read,
@@ -151,7 +152,7 @@ def _classifier_slope(distance, inverse, depth_weight, other_cylinder):
 
 
 
-@_inline
+@_llvm_inline
 def _tap_alpha(z_x, z_y, v_yx, v_yy, distance, inverse_x, min_radius, extent, inverse_extent):
     """A tap's weight from Z[X], the values read at Y and the tap's distance: the three classifiers."""
     length_y = math.sqrt(v_yx * v_yx + v_yy * v_yy)
@@ -164,7 +165,7 @@ def _tap_alpha(z_x, z_y, v_yx, v_yy, distance, inverse_x, min_radius, extent, in
     )
 
 
-@_inline
+@_llvm_inline
 def _keep_tap_alpha(alpha_s, weight_s, chunk, u, z_x, z_y, v_yx, v_yy, distance, inverse_x, min_radius, extent, inverse_extent):
     """A shifted-row tap's weight for pixel u (`_tap_alpha`): kept for the colours' loop and added
     to the pixel's weight sum."""
@@ -173,7 +174,7 @@ def _keep_tap_alpha(alpha_s, weight_s, chunk, u, z_x, z_y, v_yx, v_yy, distance,
     weight_s[chunk, u] += alpha
 
 
-@_inline
+@_llvm_inline
 def _row_read(flat, top, below, fx, fy):
     """Bilinear read of a flat image at index `top` (top-left) and `top + below` (the row below), in
     the images' dtype, the arithmetic of `_pair_read`. Along a shifted row consecutive pixels read consecutive
@@ -189,7 +190,7 @@ def _row_read(flat, top, below, fx, fy):
     return top_row + fy * (bottom_row - top_row)
 
 
-@_inline
+@_llvm_inline
 def _on_row_read(flat, top, fx):
     """`_row_read` of a tap that lies on a row (fy = 0): the row below has no weight."""
     left = flat[top]

@@ -128,9 +128,22 @@ def _jit(function):
 
 
 def _inline(function):
+    """A helper whose numba IR is copied into every caller before typing (numba's inline="always"),
+    so that LLVM optimises the helper and the caller's loop as one function: the backward's loops
+    need it (compiled on its own first, `_tap_gradients` made the per-pixel backward about a tenth
+    slower). Each copy adds to the kernel's compile time."""
     if numba is None:  # pragma: no cover
         return function
     return numba.njit(inline="always", cache=True, error_model="numpy", fastmath=True)(function)
+
+
+def _llvm_inline(function):
+    """A helper compiled once on its own and inlined by LLVM where it is called (numba's
+    forceinline): none of `_inline`'s compile time per call site, for the helpers whose callers
+    ran no slower so (the forward's tap weights and reads)."""
+    if numba is None:  # pragma: no cover
+        return function
+    return numba.njit(forceinline=True, cache=True, error_model="numpy", fastmath=True)(function)
 
 
 def _real(value, like):  # pragma: no cover - numba compiles the overload below
