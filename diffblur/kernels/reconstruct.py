@@ -51,6 +51,7 @@ from diffblur.conventions import CYLINDER_INNER, CYLINDER_OUTER, EPSILON
 from diffblur.kernels.shared import (
     ChannelFloats,
     Floats,
+    GradientFloats,
     Ints,
     _block_end,
     _deinterleave_sum,
@@ -469,16 +470,16 @@ def _reconstruct_forward(
 
 @_inline
 def _add_own(grads, grads_rows, rows, chunk, b, y, start, size, k, value_s, stored, plane, width):
-    """Add value_s[chunk, p] to input channel k's gradient at the pixels (y, start + p) of image b,
+    """Add value_s[chunk, k, p] to input channel k's gradient at the pixels (y, start + p) of image b,
     p < size: into the planar flat (B, stored, H, W) `grads_rows` when rows = 1 (one contiguous
     vector add into the band's own row), into chunk `chunk`'s interleaved `grads` else."""
     if rows != 0:
         at = np.uint64((b * stored + k) * plane + y * width + start)
         for p in range(np.uint64(size)):  # vectorized
-            grads_rows[at + p] += value_s[chunk, p]
+            grads_rows[at + p] += value_s[chunk, k, p]
     else:
         for p in range(size):
-            grads[chunk, b, y, np.uint64(start + p), k] += value_s[chunk, p]
+            grads[chunk, b, y, np.uint64(start + p), k] += value_s[chunk, k, p]
 
 
 @_inline
@@ -498,8 +499,8 @@ def _row_target(bands, chunk, reach, b, row, stored, plane, width, margins):
 
 
 @_inline
-def _add_row(target, at, row_weight, fx, value_s, chunk, first, last):
-    """Add value_s[chunk, u] for u in [first, last), times row_weight, to the 2 pixels of one row
+def _add_row(target, at, row_weight, fx, value_s, chunk, k, first, last):
+    """Add value_s[chunk, k, u] for u in [first, last), times row_weight, to the 2 pixels of one row
     that pixel u's tap read (flat indices at + u and at + u + 1, with their bilinear weights): pixel
     at + u takes the left share of value u and the right share of value u - 1, so that no two lanes
     of a vector add to one pixel and each pixel is loaded and stored once."""
@@ -508,19 +509,19 @@ def _add_row(target, at, row_weight, fx, value_s, chunk, first, last):
     one = np.uint64(1)
     left = row_weight * (_real(1.0, fx) - fx)
     right = row_weight * fx
-    target[at + np.uint64(first)] += left * value_s[chunk, np.uint64(first)]
+    target[at + np.uint64(first)] += left * value_s[chunk, k, np.uint64(first)]
     for u in range(np.uint64(first) + one, np.uint64(last)):  # vectorized: contiguous adds
-        target[at + u] += left * value_s[chunk, u] + right * value_s[chunk, u - one]
-    target[at + np.uint64(last)] += right * value_s[chunk, np.uint64(last) - one]
+        target[at + u] += left * value_s[chunk, k, u] + right * value_s[chunk, k, u - one]
+    target[at + np.uint64(last)] += right * value_s[chunk, k, np.uint64(last) - one]
 
 
 @_inline
-def _add_rows(grads_rows, top_at, bottom_at, fx, fy, value_s, chunk, first, last):
+def _add_rows(grads_rows, top_at, bottom_at, fx, fy, value_s, chunk, k, first, last):
     """`_add_row` for both rows a tap reads, weighted 1 - fy and fy; only the top row where the tap
     lies on a row (fy = 0: every tap of a horizontal motion)."""
-    _add_row(grads_rows, np.uint64(top_at), _real(1.0, fy) - fy, fx, value_s, chunk, first, last)
+    _add_row(grads_rows, np.uint64(top_at), _real(1.0, fy) - fy, fx, value_s, chunk, k, first, last)
     if fy != 0.0:
-        _add_row(grads_rows, np.uint64(bottom_at), fy, fx, value_s, chunk, first, last)
+        _add_row(grads_rows, np.uint64(bottom_at), fy, fx, value_s, chunk, k, first, last)
 
 
 @_inline
@@ -537,7 +538,7 @@ def _scatter_rows(grads_rows, top_at, bottom_at, column0, column1, fx, fy, grad)
 @_inline
 def _border_run_backward(
     color_flat, velocity_flat, depth_flat, color, b, chunk, lo, hi, column, row0, fy, inside_y, t, distance, min_radius, extent,
-    g_total_s, g_out_s, z_x_s, speed_x_s, inverse_x_s, g_alpha_s, slope_y_s, alpha_s, g_speed_x_s, g_z_x_s, g_ny_s, g_speed_n_s,
+    g_total_s, g_out_s, z_x_s, speed_x_s, inverse_x_s, g_alpha_s, slope_y_s, alpha_s, g_speed_x_s, own_s, g_ny_s, g_speed_n_s,
 ):
     """The shifted rows' border pixels [lo, hi) of a segment, whose taps are clamped to one column
     (fx = 0: no gradient along x) and so read one point: its values read once, the classifiers'
@@ -572,7 +573,7 @@ def _border_run_backward(
         g_fy = alpha * slope_y_s[chunk, u] + g_v_yx * slope_vxy + g_v_yy * slope_vyy + g_z_y * slope_zy
         alpha_s[chunk, u] = alpha
         g_speed_x_s[chunk, u] += g_speed_x
-        g_z_x_s[chunk, u] += g_z_x
+        own_s[chunk, channels + 2, u] += g_z_x
         g_ny_s[chunk, u] += g_fy * t * inside_y
         g_speed_n_s[chunk, u] += g_distance * along
         g_vx_sum += g_v_yx
@@ -584,17 +585,21 @@ def _border_run_backward(
 @_jit
 def _reconstruct_backward(
     pairs, color_flat, velocity_flat, depth_flat, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, rows, order,
-    scatter_color, scatter_velocity, scatter_depth, bands, turns, reach, out, weight, grad_out, grads, grads_rows, margins, grad_neighbors,
+    scatter, bands, turns, reach, out, weight, grad_out, grads, grads_rows, margins, grad_neighbors,
     jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, g_total_s, g_out_s,
-    column_s, row_s, t_s, fx_s, fy_s, inside_x_s, inside_y_s, g_alpha_s, slope_x_s, slope_y_s, alpha_s, g_v_yx_s, g_v_yy_s, g_z_y_s,
-    g_speed_x_s, g_z_x_s, g_vx_s, g_vy_s, g_length_x_s, g_nx_s, g_ny_s, g_speed_n_s, value_s,
+    column_s, row_s, t_s, fx_s, fy_s, inside_x_s, inside_y_s, g_alpha_s, slope_x_s, slope_y_s, alpha_s, tap_grads_s,
+    g_speed_x_s, g_length_x_s, g_nx_s, g_ny_s, g_speed_n_s, own_s,
 ):
     """The forward's layout (blocks of one row as vectors, scratch arguments) for the hand-written
-    backward, for the inputs whose scatter_* flag is 1 (ints: see the note above on aliases); the
-    other inputs' gradients come out incomplete. A chunk is the rows order[bands[chunk]:bands[chunk
+    backward. scatter: (C + 3,) ints, 1 for each input channel whose gradient is asked for (the
+    colours, V's two, Z); the others come out incomplete, and each channel's scatter is one loop
+    over them (one copy of the scatter's code, not one per input: numba compiles every inlined
+    copy). A chunk is the rows order[bands[chunk]:bands[chunk
     + 1]]; the parallel loop takes the chunks in the order `turns` (`_band_turns`). grad_neighbors:
     (chunks, B, 2, TH, TW) zeros, or (1, B, 2, TH, TW) for shifted rows (a band owns its tile rows);
-    *_s scratch: (chunks, >= _BLOCK), g_total_s (chunks, C, >= _BLOCK).
+    *_s scratch: (chunks, >= _BLOCK), g_total_s (chunks, C, >= _BLOCK); tap_grads_s and own_s
+    (chunks, C + 3, >= _BLOCK), per input channel: the current tap's gradient w.r.t. the values it
+    read, and the gradient w.r.t. the pixel's own values (the centre's colours, V[X], Z[X]).
 
     rows = 0, per pixel (pairs): per tap index k one vector loop places the taps, one per channel
     reads the colours, one runs the classifiers' derivatives; then a scalar loop scatters the
@@ -637,8 +642,8 @@ def _reconstruct_backward(
                 if count == 0:  # the early-out: out = C[X], the colour's gradient is the output's
                     for c in range(channels):
                         for p in range(size):  # vectorized
-                            value_s[chunk, p] = grad_out[b, c, y, np.uint64(start + p)]
-                        _add_own(grads, grads_rows, rows, chunk, b, y, start, size, c, value_s, stored, plane, width)
+                            own_s[chunk, c, p] = grad_out[b, c, y, np.uint64(start + p)]
+                        _add_own(grads, grads_rows, rows, chunk, b, y, start, size, c, own_s, stored, plane, width)
                     start = end
                     continue
                 _block_state(velocity, depth, neighbors, jitter, b, jb, y, start, end, tile, min_radius, chunk, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s)
@@ -657,14 +662,14 @@ def _reconstruct_backward(
                         g_total_s[chunk, c, p] = g_total
                         g_out_s[chunk, p] += g_total * out[b, c, y, ux]
                         g_speed_x_s[chunk, p] += g_total * (color[b, c, y, ux] - out[b, c, y, ux])
-                        value_s[chunk, p] = g_total / speed_x_s[chunk, p]  # the centre's C[X] / speed
-                    _add_own(grads, grads_rows, rows, chunk, b, y, start, size, c, value_s, stored, plane, width)
+                        own_s[chunk, c, p] = g_total / speed_x_s[chunk, p]  # the centre's C[X] / speed
+                    _add_own(grads, grads_rows, rows, chunk, b, y, start, size, c, own_s, stored, plane, width)
                 for p in range(size):  # vectorized
                     speed_x = speed_x_s[chunk, p]
                     g_speed_x_s[chunk, p] = -g_speed_x_s[chunk, p] / (speed_x * speed_x)
-                    g_z_x_s[chunk, p] = 0.0
-                    g_vx_s[chunk, p] = 0.0
-                    g_vy_s[chunk, p] = 0.0
+                    own_s[chunk, channels + 2, p] = 0.0
+                    own_s[chunk, channels, p] = 0.0
+                    own_s[chunk, channels + 1, p] = 0.0
                     g_length_x_s[chunk, p] = 0.0
                     g_nx_s[chunk, p] = 0.0
                     g_ny_s[chunk, p] = 0.0
@@ -732,52 +737,45 @@ def _reconstruct_backward(
                                 g_fx = alpha * slope_x_s[chunk, u] + g_v_yx * slope_vxx + g_v_yy * slope_vyx + g_z_y * slope_zx
                                 g_fy = alpha * slope_y_s[chunk, u] + g_v_yx * slope_vxy + g_v_yy * slope_vyy + g_z_y * slope_zy
                                 alpha_s[chunk, u] = alpha
-                                g_v_yx_s[chunk, u] = g_v_yx
-                                g_v_yy_s[chunk, u] = g_v_yy
-                                g_z_y_s[chunk, u] = g_z_y
+                                tap_grads_s[chunk, channels, u] = g_v_yx
+                                tap_grads_s[chunk, channels + 1, u] = g_v_yy
+                                tap_grads_s[chunk, channels + 2, u] = g_z_y
                                 g_speed_x_s[chunk, u] += g_speed_x
-                                g_z_x_s[chunk, u] += g_z_x
+                                own_s[chunk, channels + 2, u] += g_z_x
                                 g_nx_s[chunk, u] += g_fx * t_r  # an interior tap: its x is not clamped
                                 g_ny_s[chunk, u] += g_fy * t_r * inside_y_r
                                 g_speed_n_s[chunk, u] += g_distance * along
-                            # + u: pixel u's top-left read in each row, at the index `_row_target` gives
+                            # the rows' first pixels in the gradient buffer (`_row_target`); + shifted + u: pixel u's read
                             top_at, top_stride = _row_target(bands, chunk, reach, b, row0, stored, plane, width, margins)
                             bottom_at, bottom_stride = _row_target(bands, chunk, reach, b, row1, stored, plane, width, margins)
-                            top_at += start + shift
-                            bottom_at += start + shift
-                            if scatter_color != 0:
-                                for c in range(channels):
+                            shifted = start + shift
+                            for channel in range(stored):
+                                if scatter[channel] == 0:
+                                    continue
+                                if channel < channels:
                                     for u in range(np.uint64(first), np.uint64(last)):
-                                        value_s[chunk, u] = alpha_s[chunk, u] * g_total_s[chunk, c, u]
-                                    _add_rows(grads_rows, top_at + c * top_stride, bottom_at + c * bottom_stride, fx_r, fy_r, value_s, chunk, first, last)
-                            if scatter_velocity != 0:
-                                _add_rows(grads_rows, top_at + channels * top_stride, bottom_at + channels * bottom_stride, fx_r, fy_r, g_v_yx_s, chunk, first, last)
-                                _add_rows(grads_rows, top_at + (channels + 1) * top_stride, bottom_at + (channels + 1) * bottom_stride, fx_r, fy_r, g_v_yy_s, chunk, first, last)
-                            if scatter_depth != 0:
-                                _add_rows(grads_rows, top_at + (channels + 2) * top_stride, bottom_at + (channels + 2) * bottom_stride, fx_r, fy_r, g_z_y_s, chunk, first, last)
+                                        tap_grads_s[chunk, channel, u] = alpha_s[chunk, u] * g_total_s[chunk, channel, u]
+                                _add_rows(grads_rows, top_at + channel * top_stride + shifted, bottom_at + channel * bottom_stride + shifted, fx_r, fy_r, tap_grads_s, chunk, channel, first, last)
                             for side in range(2):  # the border: [q, first) clamped to column 0, [last, segment's end) to W - 1
                                 lo, hi, column = _border_run(side, q, first, last, segment_end - start, width)
                                 if hi <= lo:
                                     continue
                                 g_vx_sum, g_vy_sum, g_z_sum = _border_run_backward(
                                     color_flat, velocity_flat, depth_flat, color, b, chunk, lo, hi, column, row0, fy_r, inside_y_r, t_r, distance_r, min_radius, extent,
-                                    g_total_s, g_out_s, z_x_s, speed_x_s, inverse_x_s, g_alpha_s, slope_y_s, alpha_s, g_speed_x_s, g_z_x_s, g_ny_s, g_speed_n_s,
+                                    g_total_s, g_out_s, z_x_s, speed_x_s, inverse_x_s, g_alpha_s, slope_y_s, alpha_s, g_speed_x_s, own_s, g_ny_s, g_speed_n_s,
                                 )
                                 # every tap of the run read the one point: its gradients go there, summed
-                                top_at, top_stride = _row_target(bands, chunk, reach, b, row0, stored, plane, width, margins)
-                                bottom_at, bottom_stride = _row_target(bands, chunk, reach, b, row1, stored, plane, width, margins)
                                 zero = _real(0.0, fy_r)
-                                if scatter_color != 0:
-                                    for c in range(channels):
-                                        g_color = zero
+                                for channel in range(stored):
+                                    if scatter[channel] == 0:
+                                        continue
+                                    if channel < channels:
+                                        summed = zero
                                         for u in range(np.uint64(lo), np.uint64(hi)):  # vectorized
-                                            g_color += alpha_s[chunk, u] * g_total_s[chunk, c, u]
-                                        _scatter_rows(grads_rows, top_at + c * top_stride, bottom_at + c * bottom_stride, column, column, zero, fy_r, g_color)
-                                if scatter_velocity != 0:
-                                    _scatter_rows(grads_rows, top_at + channels * top_stride, bottom_at + channels * bottom_stride, column, column, zero, fy_r, g_vx_sum)
-                                    _scatter_rows(grads_rows, top_at + (channels + 1) * top_stride, bottom_at + (channels + 1) * bottom_stride, column, column, zero, fy_r, g_vy_sum)
-                                if scatter_depth != 0:
-                                    _scatter_rows(grads_rows, top_at + (channels + 2) * top_stride, bottom_at + (channels + 2) * bottom_stride, column, column, zero, fy_r, g_z_sum)
+                                            summed += alpha_s[chunk, u] * g_total_s[chunk, channel, u]
+                                    else:
+                                        summed = g_vx_sum if channel == channels else (g_vy_sum if channel == channels + 1 else g_z_sum)
+                                    _scatter_rows(grads_rows, top_at + channel * top_stride, bottom_at + channel * bottom_stride, column, column, zero, fy_r, summed)
                             segment = segment_end
                         continue
                     own = own_odd * (k % 2)
@@ -828,13 +826,13 @@ def _reconstruct_backward(
                         g_dy = g_fy * t * inside_y_s[chunk, p]
                         g_along = g_distance * abs(t)
                         alpha_s[chunk, p] = alpha
-                        g_v_yx_s[chunk, p] = g_v_yx
-                        g_v_yy_s[chunk, p] = g_v_yy
-                        g_z_y_s[chunk, p] = g_z_y
+                        tap_grads_s[chunk, channels, p] = g_v_yx
+                        tap_grads_s[chunk, channels + 1, p] = g_v_yy
+                        tap_grads_s[chunk, channels + 2, p] = g_z_y
                         g_speed_x_s[chunk, p] += g_speed_x
-                        g_z_x_s[chunk, p] += g_z_x
-                        g_vx_s[chunk, p] += g_dx * own
-                        g_vy_s[chunk, p] += g_dy * own
+                        own_s[chunk, channels + 2, p] += g_z_x
+                        own_s[chunk, channels, p] += g_dx * own
+                        own_s[chunk, channels + 1, p] += g_dy * own
                         g_length_x_s[chunk, p] += g_along * own
                         g_nx_s[chunk, p] += g_dx * (1 - own)
                         g_ny_s[chunk, p] += g_dy * (1 - own)
@@ -847,28 +845,24 @@ def _reconstruct_backward(
                         fx = fx_s[chunk, p]
                         fy = fy_s[chunk, p]
                         alpha = alpha_s[chunk, p]
-                        if scatter_color != 0:
-                            for c in range(channels):
-                                _scatter_chunk(grads, chunk, b, c, row0, row1, column, column1, fx, fy, alpha * g_total_s[chunk, c, p])
-                        if scatter_velocity != 0:
-                            _scatter_chunk(grads, chunk, b, channels, row0, row1, column, column1, fx, fy, g_v_yx_s[chunk, p])
-                            _scatter_chunk(grads, chunk, b, channels + 1, row0, row1, column, column1, fx, fy, g_v_yy_s[chunk, p])
-                        if scatter_depth != 0:
-                            _scatter_chunk(grads, chunk, b, channels + 2, row0, row1, column, column1, fx, fy, g_z_y_s[chunk, p])
+                        for channel in range(stored):
+                            if scatter[channel] == 0:
+                                continue
+                            value = alpha * g_total_s[chunk, channel, p] if channel < channels else tap_grads_s[chunk, channel, p]
+                            _scatter_chunk(grads, chunk, b, channel, row0, row1, column, column1, fx, fy, value)
                 for p in range(size):  # vectorized: each pixel's own V[X] and NeighborMax through their lengths
                     length_x = length_x_s[chunk, p]
                     zero = _real(0.0, length_x)
                     g_length_x = g_length_x_s[chunk, p] + (g_speed_x_s[chunk, p] if length_x >= min_radius else zero)
                     over_length = g_length_x / length_x if length_x > 0.0 else zero
-                    g_vx_s[chunk, p] += over_length * vx_s[chunk, p]
-                    g_vy_s[chunk, p] += over_length * vy_s[chunk, p]
+                    own_s[chunk, channels, p] += over_length * vx_s[chunk, p]
+                    own_s[chunk, channels + 1, p] += over_length * vy_s[chunk, p]
                     speed_n = speed_n_s[chunk, p]
                     over_speed = g_speed_n_s[chunk, p] / speed_n if speed_n > 0.0 else zero
                     g_nx_s[chunk, p] += over_speed * nx_s[chunk, p]
                     g_ny_s[chunk, p] += over_speed * ny_s[chunk, p]
-                _add_own(grads, grads_rows, rows, chunk, b, y, start, size, channels, g_vx_s, stored, plane, width)
-                _add_own(grads, grads_rows, rows, chunk, b, y, start, size, channels + 1, g_vy_s, stored, plane, width)
-                _add_own(grads, grads_rows, rows, chunk, b, y, start, size, channels + 2, g_z_x_s, stored, plane, width)
+                for channel in range(channels, stored):  # V[X]'s and Z[X]'s
+                    _add_own(grads, grads_rows, rows, chunk, b, y, start, size, channel, own_s, stored, plane, width)
                 tile_y = y // tile
                 for tile_x in range(start // tile, (end - 1) // tile + 1):  # NeighborMax's: one sum per tile
                     g_nx = 0.0
@@ -956,18 +950,13 @@ class ReconstructBackwardScratch(NamedTuple):
     slope_x: Floats
     slope_y: Floats
     alpha: Floats
-    g_v_yx: Floats
-    g_v_yy: Floats
-    g_z_y: Floats
+    tap_grads: GradientFloats
     g_speed_x: Floats
-    g_z_x: Floats
-    g_vx: Floats
-    g_vy: Floats
     g_length_x: Floats
     g_nx: Floats
     g_ny: Floats
     g_speed_n: Floats
-    value: Floats
+    own: GradientFloats
 
 
 check_scratch(_reconstruct_forward, ReconstructForwardScratch)
@@ -1142,9 +1131,10 @@ def _backward_chunks(color, velocity, depth, neighbors, counts, jitter, out, wei
         grad_neighbors = np.zeros((chunks, *neighbors.shape), dtype=color.dtype)
         order = row_order(batch * height)
     need_color, need_velocity, need_depth = (bool(need) for need in needs)
+    scatter = np.array([need_color] * channels + [need_velocity] * 2 + [need_depth], dtype=np.int64)  # per stored channel
     real = color.dtype.type  # the kernels compute in the images' precision
     turns = _band_turns(chunks, threads)
-    settings = (int(tile), real(soft_z_extent), real(min_radius), int(own_odd), int(rows), order, int(need_color), int(need_velocity), int(need_depth), bands, turns, reach)
+    settings = (int(tile), real(soft_z_extent), real(min_radius), int(own_odd), int(rows), order, scatter, bands, turns, reach)
     scratch = scratch_for(ReconstructBackwardScratch, chunks, channels, color.dtype)
     pairs = _no_pairs(color) if rows else _pairs(color, velocity, depth)
     arrays = (pairs, color.reshape(-1), velocity.reshape(-1), depth.reshape(-1), color, velocity, depth, neighbors, counts, jitter)

@@ -7,7 +7,8 @@ arrays, so both backends share them (`torch_impl._fused*`, `jax_impl._fused*`).
 The forward and backward kernels run a block of pixels of one row as SIMD vectors (see "The forward
 runs a block" below): the per-pixel state lives in scratch arrays passed as separate arguments. A
 kernel's scratch is a named tuple (`ReconstructForwardScratch`, ...) whose fields are the kernel's
-trailing `*_s` parameters, in order, each typed by its kind (`Floats`, `Ints`, `ChannelFloats`);
+trailing `*_s` parameters, in order, each typed by its kind (`Floats`, `Ints`, `ChannelFloats`,
+`GradientFloats`);
 `scratch_for` allocates one and `check_scratch` (run when each kernel module loads) checks the
 fields against the kernel's parameters by name.
 """
@@ -26,6 +27,7 @@ __all__ = [
     "THREADING_LAYER",
     "ChannelFloats",
     "Floats",
+    "GradientFloats",
     "Ints",
     "available",
     "check_scratch",
@@ -131,7 +133,9 @@ def _inline(function):
     """A helper whose numba IR is copied into every caller before typing (numba's inline="always"),
     so that LLVM optimises the helper and the caller's loop as one function: the backward's loops
     need it (compiled on its own first, `_tap_gradients` made the per-pixel backward about a tenth
-    slower). Each copy adds to the kernel's compile time."""
+    slower). Each copy adds to the kernel's compile time: call such a helper once in a loop over
+    what varies (reconstruct's backward scatters every input channel through one copy) rather than
+    once per case."""
     if numba is None:  # pragma: no cover
         return function
     return numba.njit(inline="always", cache=True, error_model="numpy", fastmath=True)(function)
@@ -383,21 +387,23 @@ _SCRATCH_GAP = 1024
 
 
 #: The kinds of a kernel's *_s scratch arrays, as the annotations of its scratch named tuple: one
-#: block row per chunk of rows, float64 (chunks, row) or int64 (chunks, row), or float64 per colour
-#: channel (chunks, C, row), with row = _BLOCK + _SCRATCH_GAP.
+#: block row per chunk of rows, float64 (chunks, row) or int64 (chunks, row), float64 per colour
+#: channel (chunks, C, row), or float64 per input channel with a gradient (chunks, C + 3, row: the
+#: colours, V's two, Z), with row = _BLOCK + _SCRATCH_GAP.
 Floats = NewType("Floats", np.ndarray)
 Ints = NewType("Ints", np.ndarray)
 ChannelFloats = NewType("ChannelFloats", np.ndarray)
+GradientFloats = NewType("GradientFloats", np.ndarray)
 
 Scratch = TypeVar("Scratch")
 
 
 def scratch_for(layout: type[Scratch], chunks: int, channels: int, floats: Any = np.float64) -> Scratch:
     """A fresh `layout` (a kernel's scratch named tuple), each field an uninitialised array of its
-    annotated kind (`Floats`, `Ints`, `ChannelFloats`), the floating ones of dtype `floats`. The
+    annotated kind (`Floats`, `Ints`, `ChannelFloats`, `GradientFloats`), the floating ones of dtype `floats`. The
     kernel takes it as `*scratch`."""
     row = _BLOCK + _SCRATCH_GAP
-    shapes = {Floats: ((chunks, row), floats), Ints: ((chunks, row), np.int64), ChannelFloats: ((chunks, channels, row), floats)}
+    shapes = {Floats: ((chunks, row), floats), Ints: ((chunks, row), np.int64), ChannelFloats: ((chunks, channels, row), floats), GradientFloats: ((chunks, channels + 3, row), floats)}
     kinds = get_type_hints(layout)
     return layout(*(np.empty(*shapes[kinds[name]]) for name in layout._fields))
 
@@ -410,7 +416,7 @@ def check_scratch(kernel: Any, layout: type) -> None:
     if parameters[-len(expected) :] != expected:
         raise TypeError(f"{layout.__name__} does not match {parameters[-len(expected):]} of its kernel")
     kinds = get_type_hints(layout)
-    unknown = sorted({kind for kind in kinds.values()} - {Floats, Ints, ChannelFloats}, key=str)
+    unknown = sorted({kind for kind in kinds.values()} - {Floats, Ints, ChannelFloats, GradientFloats}, key=str)
     if unknown:
         raise TypeError(f"{layout.__name__}: unknown scratch kinds {unknown}")
 
