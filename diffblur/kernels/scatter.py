@@ -415,11 +415,12 @@ def _settings(color: np.ndarray, depth: np.ndarray, masses: np.ndarray, extent: 
 def _groups(color: np.ndarray) -> list[tuple[int, np.ndarray]]:
     """color (B, C, H, W) as (first channel, (B, GROUP, H, W) group) pairs, the last group padded with
     zero channels: the kernels take a fixed GROUP, which keeps a source's colour in registers (~20 %
-    faster than any C)."""
+    faster than any C). Read-only, as `read_only` makes the kernels' inputs: a writable group would
+    compile every splat kernel a second time (a type of its own to numba)."""
     batch, channels, height, width = color.shape
     padded = np.zeros((batch, -(-channels // GROUP) * GROUP, height, width), dtype=color.dtype)
     padded[:, :channels] = color
-    return [(start, np.ascontiguousarray(padded[:, start : start + GROUP])) for start in range(0, padded.shape[1], GROUP)]
+    return [(start, read_only(np.ascontiguousarray(padded[:, start : start + GROUP]))[0]) for start in range(0, padded.shape[1], GROUP)]
 
 
 def splat_forward(
@@ -500,7 +501,7 @@ def splat_backward(
             grad_group_sums[:, : stop - start] = grad_sums[:, start:stop]
             if start == 0:
                 grad_group_sums[:, GROUP] = grad_sums[:, channels]
-            _pad_channels_last(grad_group_sums, grad_cells)
+            _pad_channels_last(read_only(grad_group_sums)[0], grad_cells)
             _splat_backward(group, *settings, grad_group, group_path, grad_padded_depth, grad_masses, grad_extent)
             grad_color[:, start:stop] = grad_group[:, : stop - start]
             if start == 0:
