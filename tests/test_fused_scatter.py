@@ -199,7 +199,9 @@ def test_instants_without_a_still_pixel(band):
 
 @pytest.mark.parametrize("channels", [1, 4])
 def test_channel_counts_other_than_three(channels):
-    """The kernels take colour in groups of three channels: one padded group, and a group and a half."""
+    """The kernels take colour in groups of three channels: one padded group, and a group and a half.
+    The groups reach the kernels as read-only arrays, as three channels do: one compiled signature
+    per dtype (numba compiles a writable array as a type of its own)."""
     arrays = _scene(seed=4)
     rng = np.random.default_rng(5)
     for name in ("color", "background", "cotangent"):
@@ -208,6 +210,10 @@ def test_channel_counts_other_than_three(channels):
         options = dict(samples=5, normalization="paper")
         _assert_close(_torch_run(arrays, path, options, "fused", fill), _torch_run(arrays, path, options, "tensor", fill), FUSED_FLOAT64)
     _assert_close(_jax_run(arrays, "degree 1", dict(samples=5), "fused"), _jax_run(arrays, "degree 1", dict(samples=5), "tensor"), FUSED_FLOAT64)
+    _torch_run({**arrays, **{name: arrays[name][:, :1].repeat(3, axis=1) for name in ("color", "background", "cotangent")}}, "arc", dict(samples=5, normalization="paper"), "fused", "background")
+    for kernel in (scatter_kernel._splat_forward, scatter_kernel._splat_backward, scatter_kernel._pad_channels_last):
+        float64_types = {signature[0] for signature in kernel.signatures if str(signature[0].dtype) == "float64"}
+        assert len(float64_types) == 1, (kernel.py_func.__name__, float64_types)
 
 
 @pytest.mark.parametrize("path", ["degree 2", "arc"])
