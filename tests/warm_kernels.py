@@ -25,6 +25,8 @@ def warm(dtype_name: str) -> None:
     color, depth = leaf(1, 3, 10, 12), leaf(1, 1, 10, 12)
     velocity = leaf(1, 2, 10, 12, scale=4.0)
     torch_impl.reconstruct(color, velocity, depth, impl="fused").sum().backward()
+    # Without jitter the kernels read shifted rows, whose backward adds its bands' margins in a kernel of its own.
+    torch_impl.reconstruct(color, velocity, depth, jitter="none", impl="fused").sum().backward()
     torch_impl.gather_blur(color, velocity, impl="fused").sum().backward()
     torch_impl.gather_blur(color, velocity, adaptive=True, impl="fused").sum().backward()
     torch_impl.bezier_scatter(color, depth, -velocity, velocity, impl="fused").sum().backward()
