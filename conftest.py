@@ -56,7 +56,7 @@ def pytest_configure(config):
         return
     terminal = config.pluginmanager.get_plugin("terminalreporter")
     say = terminal.write_line if terminal is not None else print
-    say("compiling the fused kernels into numba's cache first (tests/warm_kernels.py): about 3 minutes on a cold cache")
+    say("compiling the fused kernels into numba's cache first (tests/warm_kernels.py): 2 to 3 minutes on a cold cache")
     start = time.perf_counter()
     root = Path(__file__).parent
     runs = [subprocess.Popen([sys.executable, "-m", "tests.warm_kernels", dtype], cwd=root) for dtype in ("float32", "float64")]
