@@ -592,10 +592,10 @@ def _reconstruct_backward(
 ):
     """The forward's layout (blocks of one row as vectors, scratch arguments) for the hand-written
     backward. scatter: (C + 3,) ints, 1 for each input channel whose gradient is asked for (the
-    colours, V's two, Z); the others come out incomplete, and each channel's scatter is one loop
-    over them (one copy of the scatter's code, not one per input: numba compiles every inlined
-    copy). A chunk is the rows order[bands[chunk]:bands[chunk
-    + 1]]; the parallel loop takes the chunks in the order `turns` (`_band_turns`). grad_neighbors:
+    colours, V's two, Z); the others come out incomplete. The scatters loop over the channels (one
+    copy of their code, not one per input: numba compiles every inlined copy). A chunk is the rows
+    order[bands[chunk]:bands[chunk + 1]]; the parallel loop takes the chunks in the order `turns`
+    (`_band_turns`). grad_neighbors:
     (chunks, B, 2, TH, TW) zeros, or (1, B, 2, TH, TW) for shifted rows (a band owns its tile rows);
     *_s scratch: (chunks, >= _BLOCK), g_total_s (chunks, C, >= _BLOCK); tap_grads_s and own_s
     (chunks, C + 3, >= _BLOCK), per input channel: the current tap's gradient w.r.t. the values it
@@ -667,9 +667,9 @@ def _reconstruct_backward(
                 for p in range(size):  # vectorized
                     speed_x = speed_x_s[chunk, p]
                     g_speed_x_s[chunk, p] = -g_speed_x_s[chunk, p] / (speed_x * speed_x)
-                    own_s[chunk, channels + 2, p] = 0.0
                     own_s[chunk, channels, p] = 0.0
                     own_s[chunk, channels + 1, p] = 0.0
+                    own_s[chunk, channels + 2, p] = 0.0
                     g_length_x_s[chunk, p] = 0.0
                     g_nx_s[chunk, p] = 0.0
                     g_ny_s[chunk, p] = 0.0
