@@ -12,6 +12,8 @@ import sys
 
 
 def warm(dtype_name: str) -> None:
+    import warnings
+
     import torch
 
     import torch_impl
@@ -22,6 +24,8 @@ def warm(dtype_name: str) -> None:
     def leaf(*shape, scale=1.0):
         return (torch.rand(*shape, dtype=dtype, generator=generator) * scale).requires_grad_()
 
+    # The random offsets leave no pixel still; the scatter's warning says so, which is no news here.
+    warnings.filterwarnings("ignore", message=r"bezier_scatter\(fill='still'\) found no still pixel")
     color, depth = leaf(1, 3, 10, 12), leaf(1, 1, 10, 12)
     velocity = leaf(1, 2, 10, 12, scale=4.0)
     torch_impl.reconstruct(color, velocity, depth, impl="fused").sum().backward()
@@ -30,8 +34,6 @@ def warm(dtype_name: str) -> None:
     torch_impl.gather_blur(color, velocity, impl="fused").sum().backward()
     torch_impl.gather_blur(color, velocity, adaptive=True, impl="fused").sum().backward()
     torch_impl.bezier_scatter(color, depth, -velocity, velocity, impl="fused").sum().backward()
-    # Another channel count than the splats' group of 3: they then run on padded (writable) copies.
-    torch_impl.bezier_scatter(color[:, :1], depth, -velocity, velocity, impl="fused").sum().backward()
 
 
 if __name__ == "__main__":
