@@ -210,7 +210,8 @@ def test_channel_counts_other_than_three(channels):
         options = dict(samples=5, normalization="paper")
         _assert_close(_torch_run(arrays, path, options, "fused", fill), _torch_run(arrays, path, options, "tensor", fill), FUSED_FLOAT64)
     _assert_close(_jax_run(arrays, "degree 1", dict(samples=5), "fused"), _jax_run(arrays, "degree 1", dict(samples=5), "tensor"), FUSED_FLOAT64)
-    _torch_run({**arrays, **{name: arrays[name][:, :1].repeat(3, axis=1) for name in ("color", "background", "cotangent")}}, "arc", dict(samples=5, normalization="paper"), "fused", "background")
+    three_channels = {**arrays, **{name: np.repeat(arrays[name][:, :1], 3, axis=1) for name in ("color", "background", "cotangent")}}
+    _torch_run(three_channels, "arc", dict(samples=5, normalization="paper"), "fused", "background")  # no padded groups
     for kernel in (scatter_kernel._splat_forward, scatter_kernel._splat_backward, scatter_kernel._pad_channels_last):
         float64_types = {signature[0] for signature in kernel.signatures if str(signature[0].dtype) == "float64"}
         assert len(float64_types) == 1, (kernel.py_func.__name__, float64_types)

@@ -398,12 +398,22 @@ GradientFloats = NewType("GradientFloats", np.ndarray)
 Scratch = TypeVar("Scratch")
 
 
+def _scratch_shapes(chunks: int, channels: int, floats: Any) -> dict:
+    """Each scratch kind's array shape and dtype."""
+    row = _BLOCK + _SCRATCH_GAP
+    return {
+        Floats: ((chunks, row), floats),
+        Ints: ((chunks, row), np.int64),
+        ChannelFloats: ((chunks, channels, row), floats),
+        GradientFloats: ((chunks, channels + 3, row), floats),
+    }
+
+
 def scratch_for(layout: type[Scratch], chunks: int, channels: int, floats: Any = np.float64) -> Scratch:
     """A fresh `layout` (a kernel's scratch named tuple), each field an uninitialised array of its
-    annotated kind (`Floats`, `Ints`, `ChannelFloats`, `GradientFloats`), the floating ones of dtype `floats`. The
-    kernel takes it as `*scratch`."""
-    row = _BLOCK + _SCRATCH_GAP
-    shapes = {Floats: ((chunks, row), floats), Ints: ((chunks, row), np.int64), ChannelFloats: ((chunks, channels, row), floats), GradientFloats: ((chunks, channels + 3, row), floats)}
+    annotated kind (`_scratch_shapes`), the floating ones of dtype `floats`. The kernel takes it as
+    `*scratch`."""
+    shapes = _scratch_shapes(chunks, channels, floats)
     kinds = get_type_hints(layout)
     return layout(*(np.empty(*shapes[kinds[name]]) for name in layout._fields))
 
@@ -416,7 +426,7 @@ def check_scratch(kernel: Any, layout: type) -> None:
     if parameters[-len(expected) :] != expected:
         raise TypeError(f"{layout.__name__} does not match {parameters[-len(expected):]} of its kernel")
     kinds = get_type_hints(layout)
-    unknown = sorted({kind for kind in kinds.values()} - {Floats, Ints, ChannelFloats, GradientFloats}, key=str)
+    unknown = sorted(set(kinds.values()) - set(_scratch_shapes(1, 1, np.float64)), key=str)
     if unknown:
         raise TypeError(f"{layout.__name__}: unknown scratch kinds {unknown}")
 
