@@ -144,18 +144,31 @@ def test_shifted_row_bands_cover_every_row_once_and_the_taps_reach(batch, height
     assert min(height, largest_y + 1) <= reach <= height
 
 
-@pytest.mark.parametrize(("chunks", "threads"), [(8, 2), (9, 2), (12, 4), (3, 8), (1, 1)])
-def test_band_turns_give_each_thread_bands_from_all_over_the_image(chunks, threads):
-    """numba's workqueue layer gives each of T threads one contiguous part of a parallel loop's range
-    (len // T iterations, the last thread the rest): in `_band_turns`' order each part holds every
-    T-th band, so motion in one region of the image is shared by all threads."""
-    turns = reconstruct_kernel._band_turns(chunks, threads)
-    assert sorted(turns.tolist()) == list(range(chunks))  # every band once
-    share = chunks // threads
-    if share:
-        for thread in range(threads - 1):
-            part = turns[thread * share : (thread + 1) * share]
-            assert np.all(np.diff(part) == threads) and part[0] == thread
+@pytest.mark.parametrize(
+    ("batch", "tiles_y", "threads", "moving_rows"),
+    [(1, 36, 2, slice(None)), (1, 36, 2, slice(0, 18)), (1, 36, 2, slice(30, 36)), (3, 7, 4, slice(2, 5)), (1, 1, 2, slice(None)), (2, 9, 8, slice(None))],
+)
+def test_band_turns_share_the_work_evenly(batch, tiles_y, threads, moving_rows):
+    """`_band_turns` gives every band to one worker, and no worker more than the mean work plus one
+    band's (largest band first to the least loaded worker). 720p in 2 threads: 18 tile rows each,
+    where every other band gave one thread 16 and the other 20; motion in one part of the image
+    (the others early-out) is shared too."""
+    tile, tiles_x = 20, 64
+    height = tiles_y * tile
+    counts = np.zeros((batch, tiles_y, tiles_x), dtype=np.int32)
+    counts[:, moving_rows] = 15
+    bands, _ = reconstruct_kernel._bands(np.zeros((batch, 2, tiles_y, tiles_x)), height, tile, threads)
+    turns, workers = reconstruct_kernel._band_turns(bands, counts, height, tile, threads)
+    assert sorted(turns.tolist()) == list(range(len(bands) - 1))  # every band once
+    assert len(workers) == threads + 1 and workers[0] == 0 and workers[-1] == len(turns) and np.all(np.diff(workers) >= 0)
+    # the work as _band_turns weighs it, recomputed here per band from its tiles
+    tile_costs = np.where(counts > 0, counts + reconstruct_kernel._TILE_COST_BESIDE_TAPS, reconstruct_kernel._EARLY_OUT_TILE_COST)
+    band_costs = [tile_costs[start // height, start % height // tile : (end - 1) % height // tile + 1].sum() for start, end in zip(bands[:-1], bands[1:])]
+    loads = [sum(band_costs[band] for band in turns[workers[w] : workers[w + 1]]) for w in range(threads)]
+    assert max(loads) <= sum(loads) / threads + max(band_costs) + 1e-9
+    if (batch, tiles_y, threads, moving_rows) == (1, 36, 2, slice(None)):
+        rows_per_worker = [sum(np.diff(bands)[turns[workers[w] : workers[w + 1]]]) // tile for w in range(threads)]
+        assert rows_per_worker == [18, 18]
 
 
 def test_shifted_rows_with_motion_across_several_bands():
