@@ -8,6 +8,8 @@ cover when asked for (impl="fused") and quietly use the pure ops otherwise (impl
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -142,6 +144,44 @@ def test_shifted_row_bands_cover_every_row_once_and_the_taps_reach(batch, height
         assert start // height == (end - 1) // height  # within one image
         assert start % height % tile == 0 and (end % height == 0 or end % height % tile == 0)
     assert min(height, largest_y + 1) <= reach <= height
+    # as many bands as keep them 4 reach high, but at least 4 per thread (or one per tile row)
+    per_image = (len(bands) - 1) // batch
+    assert per_image >= min(tiles_y, -(-4 * threads // batch))
+    if per_image > min(tiles_y, -(-4 * threads // batch)):
+        assert min(np.diff(bands)[: per_image - 1]) >= 4 * reach  # the last band of an image may be cut short
+
+
+def test_workers_take_every_piece_once():
+    """`_take_next`, the count the kernels' threads take their pieces of work from: over many
+    pieces and more workers than cores, each piece is taken by exactly one worker, and each worker
+    stops at the first number past the last piece."""
+    numba = pytest.importorskip("numba")
+    from diffblur.kernels.shared import _take_next, work_counter, work_pieces
+
+    @numba.njit(parallel=True)
+    def take_all(workers, pieces, taken, takers):
+        for _ in numba.prange(workers):
+            while True:
+                piece = _take_next(taken)
+                if piece >= pieces:
+                    break
+                takers[piece] += 1
+
+    assert work_pieces(720, 2) == 32 and work_pieces(5, 2) == 5
+    for workers, pieces in ((2, 32), (8, 100_000), (3, 1)):
+        taken, takers = work_counter(), np.zeros(pieces, dtype=np.int64)
+        take_all(workers, pieces, taken, takers)
+        assert np.all(takers == 1) and taken[0] == pieces + workers
+
+
+@pytest.mark.parametrize(("largest_y", "expected"), [(0.0, 36), (7.5, 18), (15.0, 9), (40.0, 8)])
+def test_shifted_row_bands_at_720p(largest_y, expected):
+    """720p, tiles of 20, 2 threads: a horizontal pan (reach 2) gets a band per tile row; longer
+    vertical motion fewer, taller bands, 4 reach high each, and never fewer than 8."""
+    neighbors = np.zeros((1, 2, 36, 64))
+    neighbors[0, 1, 3, 5] = largest_y
+    bands, reach = reconstruct_kernel._bands(neighbors, 720, 20, 2)
+    assert len(bands) - 1 == expected and reach == math.ceil(largest_y) + 2
 
 
 @pytest.mark.parametrize(
@@ -149,26 +189,30 @@ def test_shifted_row_bands_cover_every_row_once_and_the_taps_reach(batch, height
     [(1, 36, 2, slice(None)), (1, 36, 2, slice(0, 18)), (1, 36, 2, slice(30, 36)), (3, 7, 4, slice(2, 5)), (1, 1, 2, slice(None)), (2, 9, 8, slice(None))],
 )
 def test_band_turns_share_the_work_evenly(batch, tiles_y, threads, moving_rows):
-    """`_band_turns` gives every band to one worker, and no worker more than the mean work plus one
-    band's (largest band first to the least loaded worker). 720p in 2 threads: 18 tile rows each,
-    where every other band gave one thread 16 and the other 20; motion in one part of the image
-    (the others early-out) is shared too."""
+    """`_band_turns`: every band once, the most work first, so that workers of one speed, each
+    taking the next band when free, end within one band's work of the mean (720p in 2 threads: 18
+    tile rows each, where every other band gave one thread 16 and the other 20); also when the
+    motion sits in one part of the image and the other tiles early-out."""
     tile, tiles_x = 20, 64
     height = tiles_y * tile
     counts = np.zeros((batch, tiles_y, tiles_x), dtype=np.int32)
     counts[:, moving_rows] = 15
     bands, _ = reconstruct_kernel._bands(np.zeros((batch, 2, tiles_y, tiles_x)), height, tile, threads)
-    turns, workers = reconstruct_kernel._band_turns(bands, counts, height, tile, threads)
+    turns = reconstruct_kernel._band_turns(bands, counts, height, tile)
     assert sorted(turns.tolist()) == list(range(len(bands) - 1))  # every band once
-    assert len(workers) == threads + 1 and workers[0] == 0 and workers[-1] == len(turns) and np.all(np.diff(workers) >= 0)
-    # the work as _band_turns weighs it, recomputed here per band from its tiles
+    # each band's work recomputed here row by row from the tiles that the row crosses
     tile_costs = np.where(counts > 0, counts + reconstruct_kernel._TILE_COST_BESIDE_TAPS, reconstruct_kernel._EARLY_OUT_TILE_COST)
-    band_costs = [tile_costs[start // height, start % height // tile : (end - 1) % height // tile + 1].sum() for start, end in zip(bands[:-1], bands[1:])]
-    loads = [sum(band_costs[band] for band in turns[workers[w] : workers[w + 1]]) for w in range(threads)]
-    assert max(loads) <= sum(loads) / threads + max(band_costs) + 1e-9
+    costs = np.array([sum(tile_costs[row // height, row % height // tile].sum() for row in range(start, end)) for start, end in zip(bands[:-1], bands[1:])])
+    np.testing.assert_allclose(reconstruct_kernel.band_costs(bands, counts, height, tile), costs)
+    assert np.all(np.diff(costs[turns]) <= 0)  # the most work first
+    loads, tile_rows = np.zeros(threads), np.zeros(threads, dtype=int)
+    for band in turns:  # the next band to the worker that is free first
+        worker = int(np.argmin(loads))
+        loads[worker] += costs[band]
+        tile_rows[worker] += -(-(bands[band + 1] - bands[band]) // tile)
+    assert loads.max() <= loads.sum() / threads + costs.max() + 1e-9
     if (batch, tiles_y, threads, moving_rows) == (1, 36, 2, slice(None)):
-        rows_per_worker = [sum(np.diff(bands)[turns[workers[w] : workers[w + 1]]]) // tile for w in range(threads)]
-        assert rows_per_worker == [18, 18]
+        assert tile_rows.tolist() == [18, 18]
 
 
 def test_shifted_rows_with_motion_across_several_bands():

@@ -27,6 +27,7 @@ from diffblur.kernels.shared import (
     _pair_read,
     _pair_read_slopes,
     _scatter_chunk,
+    _take_next,
     _tap_corner,
     _threads,
     check_scratch,
@@ -34,6 +35,8 @@ from diffblur.kernels.shared import (
     read_only,
     row_order,
     scratch_for,
+    work_counter,
+    work_pieces,
 )
 
 __all__ = [
@@ -82,56 +85,61 @@ def gather_mass_table(window: Any, samples: int, classes: tuple[int, ...], xp: A
 
 
 @_jit
-def _gather_forward(pairs, velocity, counts, masses, tile, order, out, vx_s, vy_s, index_s, below_s, fx_s, fy_s, total_s):
+def _gather_forward(pairs, velocity, counts, masses, tile, order, pieces, taken, out, vx_s, vy_s, index_s, below_s, fx_s, fy_s, total_s):
     """`_reconstruct_forward`'s layout for the gather: pairs of the colour (`_color_pairs`), blocks
     of one row as vectors (per tap index, one loop places the taps, one per channel reads them), the
-    *_s scratch one block per chunk: (chunks, >= _BLOCK), total_s (chunks, C, >= _BLOCK)."""
+    rows (in `order`) in `pieces` pieces taken by the workers in turn (`_take_next` on `taken`), the
+    *_s scratch one block per worker: (chunks, >= _BLOCK), total_s (chunks, C, >= _BLOCK)."""
     batch, channels, height, width = out.shape
     chunks = vx_s.shape[0]
     rows = batch * height
     last_x = width - 1.0
     last_y = height - 1.0
-    for chunk in numba.prange(chunks):
-        for i in range(chunk * rows // chunks, (chunk + 1) * rows // chunks):
-            row = order[i]
-            b = row // height
-            y = row % height
-            image_start = b * height * width * channels
-            start = 0
-            while start < width:
-                end = _block_end(counts, b, y // tile, start, width, tile)
-                size = end - start
-                count = counts[b, y // tile, start // tile]
-                if count == 0:  # the image
-                    for x in range(start, end):
-                        for c in range(channels):
-                            out[b, c, y, x] = _pair(pairs, image_start + (y * width + x) * channels + c)[0]
-                    start = end
-                    continue
-                for p in range(size):
-                    # Unsigned column indices: a signed start + p carries numba's negative-index wraparound,
-                    # a select in front of each load that blocks the vector loads.
-                    vx_s[chunk, p] = velocity[b, 0, y, np.uint64(start + p)]
-                    vy_s[chunk, p] = velocity[b, 1, y, np.uint64(start + p)]
-                    for c in range(channels):
-                        total_s[chunk, c, p] = 0.0
-                for k in range(count):
-                    t = (2.0 * k + 1.0) / count - 1.0
-                    mass = np.float64(masses[count, k])
-                    for p in range(size):  # vectorized: the taps
-                        column, row0, fx, fy, _, _ = _tap_corner((start + p) - t * vx_s[chunk, p], y - t * vy_s[chunk, p], last_x, last_y)
-                        index_s[chunk, p] = image_start + (row0 * width + column) * channels
-                        below_s[chunk, p] = width * channels if row0 < height - 1 else 0
-                        fx_s[chunk, p] = fx
-                        fy_s[chunk, p] = fy
-                    for c in range(channels):
-                        for p in range(size):  # vectorized: gathers
-                            read = _pair_read(pairs, index_s[chunk, p] + c, below_s[chunk, p], fx_s[chunk, p], fy_s[chunk, p])
-                            total_s[chunk, c, p] += mass * read
-                for p in range(size):
-                    for c in range(channels):
-                        out[b, c, y, np.uint64(start + p)] = total_s[chunk, c, p]
-                start = end
+    for chunk in numba.prange(chunks):  # one iteration per worker; chunk: its scratch
+        while True:
+            piece = _take_next(taken)
+            if piece >= pieces:
+                break
+            for i in range(piece * rows // pieces, (piece + 1) * rows // pieces):
+                    row = order[i]
+                    b = row // height
+                    y = row % height
+                    image_start = b * height * width * channels
+                    start = 0
+                    while start < width:
+                        end = _block_end(counts, b, y // tile, start, width, tile)
+                        size = end - start
+                        count = counts[b, y // tile, start // tile]
+                        if count == 0:  # the image
+                            for x in range(start, end):
+                                for c in range(channels):
+                                    out[b, c, y, x] = _pair(pairs, image_start + (y * width + x) * channels + c)[0]
+                            start = end
+                            continue
+                        for p in range(size):
+                            # Unsigned column indices: a signed start + p carries numba's negative-index wraparound,
+                            # a select in front of each load that blocks the vector loads.
+                            vx_s[chunk, p] = velocity[b, 0, y, np.uint64(start + p)]
+                            vy_s[chunk, p] = velocity[b, 1, y, np.uint64(start + p)]
+                            for c in range(channels):
+                                total_s[chunk, c, p] = 0.0
+                        for k in range(count):
+                            t = (2.0 * k + 1.0) / count - 1.0
+                            mass = np.float64(masses[count, k])
+                            for p in range(size):  # vectorized: the taps
+                                column, row0, fx, fy, _, _ = _tap_corner((start + p) - t * vx_s[chunk, p], y - t * vy_s[chunk, p], last_x, last_y)
+                                index_s[chunk, p] = image_start + (row0 * width + column) * channels
+                                below_s[chunk, p] = width * channels if row0 < height - 1 else 0
+                                fx_s[chunk, p] = fx
+                                fy_s[chunk, p] = fy
+                            for c in range(channels):
+                                for p in range(size):  # vectorized: gathers
+                                    read = _pair_read(pairs, index_s[chunk, p] + c, below_s[chunk, p], fx_s[chunk, p], fy_s[chunk, p])
+                                    total_s[chunk, c, p] += mass * read
+                        for p in range(size):
+                            for c in range(channels):
+                                out[b, c, y, np.uint64(start + p)] = total_s[chunk, c, p]
+                        start = end
 
 
 @_jit
@@ -311,8 +319,10 @@ def gather_forward(
     out = np.empty_like(color)
     counts = _gather_counts(velocity, samples, classes, still, tile)
     tile = max(height, width) if classes is None else int(tile)
-    scratch = scratch_for(GatherForwardScratch, min(batch * height, _threads()), color.shape[1])
-    _gather_forward(_color_pairs(color), velocity, counts, masses, tile, row_order(batch * height), out, *scratch)
+    workers = min(batch * height, _threads())
+    scratch = scratch_for(GatherForwardScratch, workers, color.shape[1])
+    order = row_order(batch * height)
+    _gather_forward(_color_pairs(color), velocity, counts, masses, tile, order, work_pieces(batch * height, workers), work_counter(), out, *scratch)
     return out
 
 

@@ -65,6 +65,7 @@ from diffblur.kernels.shared import (
     _real,
     _scatter_chunk,
     _soft_depth_compare,
+    _take_next,
     _tap_corner,
     _threads,
     check_scratch,
@@ -72,6 +73,8 @@ from diffblur.kernels.shared import (
     read_only,
     row_order,
     scratch_for,
+    work_counter,
+    work_pieces,
 )
 
 __all__ = [
@@ -336,11 +339,12 @@ def _block_state(velocity, depth, neighbors, jitter, b, jb, y, start, end, tile,
 
 @_jit
 def _reconstruct_forward(
-    pairs, color_flat, velocity_flat, depth_flat, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, rows, order, chunks, out, weight,
+    pairs, color_flat, velocity_flat, depth_flat, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, rows, order, chunks, pieces, taken, out, weight,
     jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, weight_s, total_s, index_s, below_s, fx_s, fy_s, alpha_s,
 ):
-    """The *_s scratch arrays hold one block per chunk: (chunks, >= _BLOCK), total_s (chunks, C, >= _BLOCK).
-    own_odd and rows are ints (0 or 1): see the note above on aliases. rows = 1: every tap along
+    """chunks workers, one parallel iteration each, take the rows (in `order`) in `pieces` pieces
+    (`_take_next` on `taken`); the *_s scratch arrays hold one block per worker: (chunks, >= _BLOCK),
+    total_s (chunks, C, >= _BLOCK). own_odd and rows are ints (0 or 1): see the note above on aliases. rows = 1: every tap along
     NeighborMax with a jitter constant per tile (the caller checked), read as shifted rows of the
     flat images (*_flat; pairs unused); rows = 0: each pixel's tap read from `pairs`."""
     batch, channels, height, width = color.shape
@@ -351,120 +355,124 @@ def _reconstruct_forward(
     image_rows = batch * height
     last_x = width - 1.0
     last_y = height - 1.0
-    for chunk in numba.prange(chunks):
-        for i in range(chunk * image_rows // chunks, (chunk + 1) * image_rows // chunks):
-            row = order[i]
-            b = row // height
-            y = row % height
-            jb = b if jitter_batch > 1 else 0
-            image_start = b * height * width * stored
-            start = 0
-            while start < width:
-                end = _block_end(counts, b, y // tile, start, width, tile)
-                size = end - start
-                count = counts[b, y // tile, start // tile]
-                if count == 0:  # the early-out: the image
-                    for c in range(channels):
-                        for x in range(np.uint64(start), np.uint64(end)):  # vectorized: contiguous copies
-                            out[b, c, y, x] = color[b, c, y, x]
-                    for x in range(np.uint64(start), np.uint64(end)):
-                        weight[b, y, x] = 0.0
-                    start = end
-                    continue
-                _block_state(velocity, depth, neighbors, jitter, b, jb, y, start, end, tile, min_radius, chunk, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s)
-                for p in range(size):
-                    weight_s[chunk, p] = _real(1.0, weight_s) / speed_x_s[chunk, p]
-                for c in range(channels):
-                    for p in range(size):  # vectorized
-                        total_s[chunk, c, p] = weight_s[chunk, p] * color[b, c, y, np.uint64(start + p)]
-                middle = (count - 1) // 2
-                step = 2.0 / (count + 1.0)
-                for k in range(count):
-                    if k == middle:
-                        continue
-                    if rows != 0:  # shifted rows: one offset per tile segment
-                        segment = start
-                        while segment < end:
-                            segment_end = _segment_end(segment, start, end, tile, chunk, jitter_s, nx_s, ny_s)
-                            q = segment - start
-                            t = -1.0 + (k + jitter_s[chunk, q] + 1.0) * step
-                            shift_x = nx_s[chunk, q] * t
-                            py = y + ny_s[chunk, q] * t
-                            row0, row1, fy, _, shift, fx, first, last = _shifted_rows(py, shift_x, start, segment, segment_end, height, width, last_y)
-                            # The taps' arithmetic in the images' precision: float32 vectors hold twice the lanes.
-                            distance = _real(abs(t) * speed_n_s[chunk, q], color_flat)
-                            fx = _real(fx, color_flat)
-                            fy = _real(fy, color_flat)
-                            below = np.uint64((row1 - row0) * width)
-                            top = row0 * width + start + shift  # + u: pixel u's top-left read
-                            top_vx = np.uint64(2 * b * plane + top)
-                            top_vy = np.uint64((2 * b + 1) * plane + top)
-                            top_z = np.uint64(b * plane + top)
-                            if fy == 0.0:  # the tap lies on a row (every tap of a horizontal motion): one row read, the same values
-                                for u in range(np.uint64(first), np.uint64(last)):  # vectorized: contiguous reads
-                                    v_yx = _on_row_read(velocity_flat, top_vx + u, fx)
-                                    v_yy = _on_row_read(velocity_flat, top_vy + u, fx)
-                                    z_y = _on_row_read(depth_flat, top_z + u, fx)
-                                    _keep_tap_alpha(alpha_s, weight_s, chunk, u, z_x_s[chunk, u], z_y, v_yx, v_yy, distance, inverse_x_s[chunk, u], min_radius, extent, inverse_extent)
-                                for c in range(channels):
-                                    top_c = np.uint64((b * channels + c) * plane + top)
-                                    for u in range(np.uint64(first), np.uint64(last)):  # vectorized
-                                        total_s[chunk, c, u] += alpha_s[chunk, u] * _on_row_read(color_flat, top_c + u, fx)
-                            else:
-                                for u in range(np.uint64(first), np.uint64(last)):  # vectorized: contiguous reads
-                                    v_yx = _row_read(velocity_flat, top_vx + u, below, fx, fy)
-                                    v_yy = _row_read(velocity_flat, top_vy + u, below, fx, fy)
-                                    z_y = _row_read(depth_flat, top_z + u, below, fx, fy)
-                                    _keep_tap_alpha(alpha_s, weight_s, chunk, u, z_x_s[chunk, u], z_y, v_yx, v_yy, distance, inverse_x_s[chunk, u], min_radius, extent, inverse_extent)
-                                for c in range(channels):
-                                    top_c = np.uint64((b * channels + c) * plane + top)
-                                    for u in range(np.uint64(first), np.uint64(last)):  # vectorized
-                                        total_s[chunk, c, u] += alpha_s[chunk, u] * _row_read(color_flat, top_c + u, below, fx, fy)
-                            for side in range(2):  # the border: [q, first) clamped to column 0, [last, segment's end) to W - 1
-                                lo, hi, column = _border_run(side, q, first, last, segment_end - start, width)
-                                if hi <= lo:
-                                    continue
-                                zero = _real(0.0, fy)  # fx: every tap of the run reads the one clamped point
-                                _, _, v_yx = _clamped_read_slopes(velocity_flat, 2 * b * plane, width, row0, row1, column, zero, fy)
-                                _, _, v_yy = _clamped_read_slopes(velocity_flat, (2 * b + 1) * plane, width, row0, row1, column, zero, fy)
-                                _, _, z_y = _clamped_read_slopes(depth_flat, b * plane, width, row0, row1, column, zero, fy)
-                                for u in range(np.uint64(lo), np.uint64(hi)):  # vectorized
-                                    _keep_tap_alpha(alpha_s, weight_s, chunk, u, z_x_s[chunk, u], z_y, v_yx, v_yy, distance, inverse_x_s[chunk, u], min_radius, extent, inverse_extent)
-                                for c in range(channels):
-                                    _, _, c_y = _clamped_read_slopes(color_flat, (b * channels + c) * plane, width, row0, row1, column, zero, fy)
-                                    for u in range(np.uint64(lo), np.uint64(hi)):  # vectorized
-                                        total_s[chunk, c, u] += alpha_s[chunk, u] * c_y
-                            segment = segment_end
-                        continue
-                    own = own_odd * (k % 2)
-                    for p in range(size):  # vectorized: no branches, gathers
-                        t = -1.0 + (k + jitter_s[chunk, p] + 1.0) * step
-                        dx = vx_s[chunk, p] if own != 0 else nx_s[chunk, p]
-                        dy = vy_s[chunk, p] if own != 0 else ny_s[chunk, p]
-                        speed = length_x_s[chunk, p] if own != 0 else speed_n_s[chunk, p]
-                        column, row0, fx, fy, _, _ = _tap_corner((start + p) + dx * t, y + dy * t, last_x, last_y)
-                        index = image_start + (row0 * width + column) * stored
-                        below_pair = width * stored if row0 < height - 1 else 0
-                        index_s[chunk, p] = index
-                        below_s[chunk, p] = below_pair
-                        fx_s[chunk, p] = fx
-                        fy_s[chunk, p] = fy
-                        v_yx = _pair_read(pairs, index + channels, below_pair, fx, fy)
-                        v_yy = _pair_read(pairs, index + channels + 1, below_pair, fx, fy)
-                        z_y = _pair_read(pairs, index + channels + 2, below_pair, fx, fy)
-                        alpha = _tap_alpha(z_x_s[chunk, p], z_y, v_yx, v_yy, abs(t) * speed, inverse_x_s[chunk, p], min_radius, extent, inverse_extent)
-                        alpha_s[chunk, p] = alpha
-                        weight_s[chunk, p] += alpha
-                    for c in range(channels):
-                        for p in range(size):  # vectorized
-                            read = _pair_read(pairs, index_s[chunk, p] + c, below_s[chunk, p], fx_s[chunk, p], fy_s[chunk, p])
-                            total_s[chunk, c, p] += alpha_s[chunk, p] * read
-                for c in range(channels):
-                    for p in range(size):  # vectorized
-                        out[b, c, y, np.uint64(start + p)] = total_s[chunk, c, p] / weight_s[chunk, p]
-                for p in range(size):
-                    weight[b, y, np.uint64(start + p)] = weight_s[chunk, p]
-                start = end
+    for chunk in numba.prange(chunks):  # one iteration per worker; chunk: its scratch
+        while True:  # the rows order[...] in `pieces` pieces, taken in turn by whichever worker is free
+            piece = _take_next(taken)
+            if piece >= pieces:
+                break
+            for i in range(piece * image_rows // pieces, (piece + 1) * image_rows // pieces):
+                    row = order[i]
+                    b = row // height
+                    y = row % height
+                    jb = b if jitter_batch > 1 else 0
+                    image_start = b * height * width * stored
+                    start = 0
+                    while start < width:
+                        end = _block_end(counts, b, y // tile, start, width, tile)
+                        size = end - start
+                        count = counts[b, y // tile, start // tile]
+                        if count == 0:  # the early-out: the image
+                            for c in range(channels):
+                                for x in range(np.uint64(start), np.uint64(end)):  # vectorized: contiguous copies
+                                    out[b, c, y, x] = color[b, c, y, x]
+                            for x in range(np.uint64(start), np.uint64(end)):
+                                weight[b, y, x] = 0.0
+                            start = end
+                            continue
+                        _block_state(velocity, depth, neighbors, jitter, b, jb, y, start, end, tile, min_radius, chunk, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s)
+                        for p in range(size):
+                            weight_s[chunk, p] = _real(1.0, weight_s) / speed_x_s[chunk, p]
+                        for c in range(channels):
+                            for p in range(size):  # vectorized
+                                total_s[chunk, c, p] = weight_s[chunk, p] * color[b, c, y, np.uint64(start + p)]
+                        middle = (count - 1) // 2
+                        step = 2.0 / (count + 1.0)
+                        for k in range(count):
+                            if k == middle:
+                                continue
+                            if rows != 0:  # shifted rows: one offset per tile segment
+                                segment = start
+                                while segment < end:
+                                    segment_end = _segment_end(segment, start, end, tile, chunk, jitter_s, nx_s, ny_s)
+                                    q = segment - start
+                                    t = -1.0 + (k + jitter_s[chunk, q] + 1.0) * step
+                                    shift_x = nx_s[chunk, q] * t
+                                    py = y + ny_s[chunk, q] * t
+                                    row0, row1, fy, _, shift, fx, first, last = _shifted_rows(py, shift_x, start, segment, segment_end, height, width, last_y)
+                                    # The taps' arithmetic in the images' precision: float32 vectors hold twice the lanes.
+                                    distance = _real(abs(t) * speed_n_s[chunk, q], color_flat)
+                                    fx = _real(fx, color_flat)
+                                    fy = _real(fy, color_flat)
+                                    below = np.uint64((row1 - row0) * width)
+                                    top = row0 * width + start + shift  # + u: pixel u's top-left read
+                                    top_vx = np.uint64(2 * b * plane + top)
+                                    top_vy = np.uint64((2 * b + 1) * plane + top)
+                                    top_z = np.uint64(b * plane + top)
+                                    if fy == 0.0:  # the tap lies on a row (every tap of a horizontal motion): one row read, the same values
+                                        for u in range(np.uint64(first), np.uint64(last)):  # vectorized: contiguous reads
+                                            v_yx = _on_row_read(velocity_flat, top_vx + u, fx)
+                                            v_yy = _on_row_read(velocity_flat, top_vy + u, fx)
+                                            z_y = _on_row_read(depth_flat, top_z + u, fx)
+                                            _keep_tap_alpha(alpha_s, weight_s, chunk, u, z_x_s[chunk, u], z_y, v_yx, v_yy, distance, inverse_x_s[chunk, u], min_radius, extent, inverse_extent)
+                                        for c in range(channels):
+                                            top_c = np.uint64((b * channels + c) * plane + top)
+                                            for u in range(np.uint64(first), np.uint64(last)):  # vectorized
+                                                total_s[chunk, c, u] += alpha_s[chunk, u] * _on_row_read(color_flat, top_c + u, fx)
+                                    else:
+                                        for u in range(np.uint64(first), np.uint64(last)):  # vectorized: contiguous reads
+                                            v_yx = _row_read(velocity_flat, top_vx + u, below, fx, fy)
+                                            v_yy = _row_read(velocity_flat, top_vy + u, below, fx, fy)
+                                            z_y = _row_read(depth_flat, top_z + u, below, fx, fy)
+                                            _keep_tap_alpha(alpha_s, weight_s, chunk, u, z_x_s[chunk, u], z_y, v_yx, v_yy, distance, inverse_x_s[chunk, u], min_radius, extent, inverse_extent)
+                                        for c in range(channels):
+                                            top_c = np.uint64((b * channels + c) * plane + top)
+                                            for u in range(np.uint64(first), np.uint64(last)):  # vectorized
+                                                total_s[chunk, c, u] += alpha_s[chunk, u] * _row_read(color_flat, top_c + u, below, fx, fy)
+                                    for side in range(2):  # the border: [q, first) clamped to column 0, [last, segment's end) to W - 1
+                                        lo, hi, column = _border_run(side, q, first, last, segment_end - start, width)
+                                        if hi <= lo:
+                                            continue
+                                        zero = _real(0.0, fy)  # fx: every tap of the run reads the one clamped point
+                                        _, _, v_yx = _clamped_read_slopes(velocity_flat, 2 * b * plane, width, row0, row1, column, zero, fy)
+                                        _, _, v_yy = _clamped_read_slopes(velocity_flat, (2 * b + 1) * plane, width, row0, row1, column, zero, fy)
+                                        _, _, z_y = _clamped_read_slopes(depth_flat, b * plane, width, row0, row1, column, zero, fy)
+                                        for u in range(np.uint64(lo), np.uint64(hi)):  # vectorized
+                                            _keep_tap_alpha(alpha_s, weight_s, chunk, u, z_x_s[chunk, u], z_y, v_yx, v_yy, distance, inverse_x_s[chunk, u], min_radius, extent, inverse_extent)
+                                        for c in range(channels):
+                                            _, _, c_y = _clamped_read_slopes(color_flat, (b * channels + c) * plane, width, row0, row1, column, zero, fy)
+                                            for u in range(np.uint64(lo), np.uint64(hi)):  # vectorized
+                                                total_s[chunk, c, u] += alpha_s[chunk, u] * c_y
+                                    segment = segment_end
+                                continue
+                            own = own_odd * (k % 2)
+                            for p in range(size):  # vectorized: no branches, gathers
+                                t = -1.0 + (k + jitter_s[chunk, p] + 1.0) * step
+                                dx = vx_s[chunk, p] if own != 0 else nx_s[chunk, p]
+                                dy = vy_s[chunk, p] if own != 0 else ny_s[chunk, p]
+                                speed = length_x_s[chunk, p] if own != 0 else speed_n_s[chunk, p]
+                                column, row0, fx, fy, _, _ = _tap_corner((start + p) + dx * t, y + dy * t, last_x, last_y)
+                                index = image_start + (row0 * width + column) * stored
+                                below_pair = width * stored if row0 < height - 1 else 0
+                                index_s[chunk, p] = index
+                                below_s[chunk, p] = below_pair
+                                fx_s[chunk, p] = fx
+                                fy_s[chunk, p] = fy
+                                v_yx = _pair_read(pairs, index + channels, below_pair, fx, fy)
+                                v_yy = _pair_read(pairs, index + channels + 1, below_pair, fx, fy)
+                                z_y = _pair_read(pairs, index + channels + 2, below_pair, fx, fy)
+                                alpha = _tap_alpha(z_x_s[chunk, p], z_y, v_yx, v_yy, abs(t) * speed, inverse_x_s[chunk, p], min_radius, extent, inverse_extent)
+                                alpha_s[chunk, p] = alpha
+                                weight_s[chunk, p] += alpha
+                            for c in range(channels):
+                                for p in range(size):  # vectorized
+                                    read = _pair_read(pairs, index_s[chunk, p] + c, below_s[chunk, p], fx_s[chunk, p], fy_s[chunk, p])
+                                    total_s[chunk, c, p] += alpha_s[chunk, p] * read
+                        for c in range(channels):
+                            for p in range(size):  # vectorized
+                                out[b, c, y, np.uint64(start + p)] = total_s[chunk, c, p] / weight_s[chunk, p]
+                        for p in range(size):
+                            weight[b, y, np.uint64(start + p)] = weight_s[chunk, p]
+                        start = end
 
 
 
@@ -585,7 +593,7 @@ def _border_run_backward(
 @_jit
 def _reconstruct_backward(
     pairs, color_flat, velocity_flat, depth_flat, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, rows, order,
-    scatter, bands, turns, workers, reach, out, weight, grad_out, grads, grads_rows, margins, grad_neighbors,
+    scatter, bands, turns, workers, taken, reach, out, weight, grad_out, grads, grads_rows, margins, grad_neighbors,
     jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, g_total_s, g_out_s,
     column_s, row_s, t_s, fx_s, fy_s, inside_x_s, inside_y_s, g_alpha_s, slope_x_s, slope_y_s, alpha_s, tap_grads_s,
     g_speed_x_s, g_length_x_s, g_nx_s, g_ny_s, g_speed_n_s, own_s,
@@ -594,8 +602,8 @@ def _reconstruct_backward(
     backward. scatter: (C + 3,) ints, 1 for each input channel whose gradient is asked for (the
     colours, V's two, Z); the others come out incomplete. The scatters loop over the channels (one
     copy of their code, not one per input: numba compiles every inlined copy). A chunk is the rows
-    order[bands[chunk]:bands[chunk + 1]]; the parallel loop runs one iteration per worker, which
-    takes the chunks turns[workers[worker]:workers[worker + 1]] in turn (`_band_turns`). grad_neighbors:
+    order[bands[chunk]:bands[chunk + 1]]; `workers` workers take them in the order `turns`, each the
+    next one left when it is free (`_take_next` on `taken`). grad_neighbors:
     (chunks, B, 2, TH, TW) zeros, or (1, B, 2, TH, TW) for shifted rows (a band owns its tile rows);
     *_s scratch: (chunks, >= _BLOCK), g_total_s (chunks, C, >= _BLOCK); tap_grads_s and own_s
     (chunks, C + 3, >= _BLOCK), per input channel: the current tap's gradient w.r.t. the values it
@@ -616,8 +624,11 @@ def _reconstruct_backward(
     inverse_extent = _real(1.0, extent) / extent
     last_x = width - 1.0
     last_y = height - 1.0
-    for worker in numba.prange(workers.shape[0] - 1):
-        for turn in range(workers[worker], workers[worker + 1]):  # the worker's bands (`_band_turns`)
+    for _ in numba.prange(workers):  # one iteration per worker, each taking the chunks in turns' order (`_band_turns`) while any is left
+        while True:
+            turn = _take_next(taken)
+            if turn >= turns.shape[0]:
+                break
             chunk = turns[turn]
             slot = np.int64(chunk) % grad_neighbors.shape[0]  # shifted rows: one shared buffer, a band owns its tile rows
             if rows != 0:  # a band's own rows of the output and its margins start at zero
@@ -1004,7 +1015,7 @@ def reconstruct_forward(
     chunks = min(batch * height, _threads())
     rows = shifted_rows(jitter, tile, own_odd)
     real = color.dtype.type  # the kernels compute in the images' precision
-    settings = (int(tile), real(soft_z_extent), real(min_radius), int(own_odd), int(rows), row_order(batch * height), chunks)
+    settings = (int(tile), real(soft_z_extent), real(min_radius), int(own_odd), int(rows), row_order(batch * height), chunks, work_pieces(batch * height, chunks), work_counter())
     scratch = scratch_for(ReconstructForwardScratch, chunks, channels, color.dtype)
     pairs = _no_pairs(color) if rows else _pairs(color, velocity, depth)
     flats = (color.reshape(-1), velocity.reshape(-1), depth.reshape(-1))
@@ -1077,9 +1088,14 @@ def reconstruct_backward_stacked(
     return _summed(buffers, color, 0, color.shape[1] + 3), grad_neighbors if needs[1] else None
 
 
-#: Bands per thread of the shifted-row backward: several, so that `_band_turns` can share them out
-#: evenly when the motion sits in one part of the image.
+#: Bands per thread of the shifted-row backward, at least: several, so that the threads, taking them
+#: one at a time, end together when the motion sits in one part of the image.
 _BANDS_PER_THREAD = 4
+
+#: The shifted-row backward's bands are at least this many times their reach high (`_bands`): their
+#: margins, 2 reach rows, at most half their own rows. Measured at 720p (kernels alone, 2 threads,
+#: 8 to 36 bands): the fastest count was the most bands of that height at 0, 30 and 90 degrees.
+_BAND_PER_REACH = 4
 
 #: The shifted-row backward's work per tile in units of one tap, for `_band_turns`: a tile with taps
 #: costs its count and two (count - 1 taps, about three taps' worth of per-pixel work around them), an
@@ -1089,40 +1105,39 @@ _TILE_COST_BESIDE_TAPS = 2.0
 _EARLY_OUT_TILE_COST = 1.0
 
 
-def _band_turns(bands: np.ndarray, counts: np.ndarray, height: int, tile: int, threads: int) -> tuple[np.ndarray, np.ndarray]:
-    """The shifted-row backward's bands shared out among `threads` workers with about the same work
-    each (estimated from the taps per tile): turns lists the bands worker by worker, and worker w
-    takes turns[workers[w]:workers[w + 1]]. The kernel's parallel loop runs one iteration per
-    worker, so the shares do not depend on how a threading layer splits a loop's range. Largest band
-    first, to the worker with the least so far: 720p's 36 tile rows in 8 bands of 4 and 5 give 2
-    threads 18 tile rows each, where every other band would give one 16 and the other 20."""
+def band_costs(bands: np.ndarray, counts: np.ndarray, height: int, tile: int) -> np.ndarray:
+    """Each shifted-row band's work, estimated from the taps per tile (B, TH, TW) of its tile rows."""
     tile_costs = np.where(counts > 0, counts + _TILE_COST_BESIDE_TAPS, _EARLY_OUT_TILE_COST).sum(axis=2)  # (B, TH)
     row_costs = tile_costs[:, np.arange(height) // tile].reshape(-1)  # per row b * H + y
     before = np.concatenate(([0.0], np.cumsum(row_costs)))
-    band_costs = before[bands[1:]] - before[bands[:-1]]
-    loads = np.zeros(threads)
-    shares: list[list[int]] = [[] for _ in range(threads)]
-    for band in np.argsort(-band_costs, kind="stable"):
-        worker = int(np.argmin(loads))
-        shares[worker].append(int(band))
-        loads[worker] += band_costs[band]
-    turns = np.array([band for share in shares for band in sorted(share)], dtype=np.int64)
-    workers = np.cumsum([0] + [len(share) for share in shares]).astype(np.int64)
-    return turns, workers
+    return before[bands[1:]] - before[bands[:-1]]
+
+
+def _band_turns(bands: np.ndarray, counts: np.ndarray, height: int, tile: int) -> np.ndarray:
+    """The order the shifted-row backward's workers take its bands in: the most work first
+    (`band_costs`), each worker the next band left when it is free, so that the last bands, the
+    ones a worker may wait for, are the smallest. 720p's 36 tile rows in 8 bands of 4 and 5 go 18
+    and 18 to 2 threads of one speed; taking every other band would give one 16 and the other 20."""
+    return np.argsort(-band_costs(bands, counts, height, tile), kind="stable").astype(np.int64)
 
 
 def _bands(neighbors: np.ndarray, height: int, tile: int, threads: int) -> tuple[np.ndarray, int]:
     """The shifted-row backward's bands, as the flat (b * H + y) row where each starts (and the
     end): runs of whole tile rows of one image, so that a band owns its tiles' NeighborMax
     gradients; and their reach, the rows beyond a band that its taps read (|NeighborMax_y| and one
-    for the bilinear read)."""
+    for the bilinear read). As many bands as keep each at least `_BAND_PER_REACH` times its reach
+    high, and at least `_BANDS_PER_THREAD` per thread: a short band's rows of the output stay in
+    the core's cache between the zeroing that starts it and its taps' adds, but each band also
+    zeroes and adds the 2 reach rows of its margins."""
     batch, _, tiles_y, _ = neighbors.shape
-    per_image = max(1, min(tiles_y, -(-_BANDS_PER_THREAD * threads // batch)))
+    largest = float(np.abs(neighbors[:, 1]).max()) if neighbors.size else 0.0
+    reach = min(int(math.ceil(largest)) + 2, height)
+    fitting = tiles_y // -(-_BAND_PER_REACH * reach // tile)  # bands of whole tile rows at least that high
+    per_image = max(1, min(tiles_y, max(fitting, -(-_BANDS_PER_THREAD * threads // batch))))
     tile_rows = np.minimum(np.arange(per_image + 1) * tiles_y // per_image * tile, height)
     starts = (np.arange(batch)[:, None] * height + tile_rows[None, :-1]).reshape(-1)
     bands = np.append(starts, batch * height).astype(np.int64)
-    largest = float(np.abs(neighbors[:, 1]).max()) if neighbors.size else 0.0
-    return bands, min(int(math.ceil(largest)) + 2, height)
+    return bands, reach
 
 
 def _backward_chunks(color, velocity, depth, neighbors, counts, jitter, out, weight, grad_out, tile, soft_z_extent, min_radius, own_odd, needs):
@@ -1153,19 +1168,12 @@ def _backward_chunks(color, velocity, depth, neighbors, counts, jitter, out, wei
     need_color, need_velocity, need_depth = (bool(need) for need in needs)
     scatter = np.array([need_color] * channels + [need_velocity] * 2 + [need_depth], dtype=np.int64)  # per stored channel
     real = color.dtype.type  # the kernels compute in the images' precision
-    if rows:
-        turns, workers = _band_turns(bands, counts, height, tile, threads)
-    else:  # one chunk of interleaved rows per thread
-        turns, workers = np.arange(chunks, dtype=np.int64), np.arange(chunks + 1, dtype=np.int64)
-    settings = (int(tile), real(soft_z_extent), real(min_radius), int(own_odd), int(rows), order, scatter, bands, turns, workers, reach)
+    turns = _band_turns(bands, counts, height, tile) if rows else np.arange(chunks, dtype=np.int64)  # per pixel: a chunk per thread
+    settings = (int(tile), real(soft_z_extent), real(min_radius), int(own_odd), int(rows), order, scatter, bands, turns, min(threads, chunks), work_counter(), reach)
     scratch = scratch_for(ReconstructBackwardScratch, chunks, channels, color.dtype)
     pairs = _no_pairs(color) if rows else _pairs(color, velocity, depth)
     arrays = (pairs, color.reshape(-1), velocity.reshape(-1), depth.reshape(-1), color, velocity, depth, neighbors, counts, jitter)
-    previous = numba.set_parallel_chunksize(1)  # one worker per division, for the layers that schedule dynamically
-    try:
-        _reconstruct_backward(*arrays, *settings, out, weight, grad_out, grads, buffer, margins, grad_neighbors, *scratch)
-    finally:
-        numba.set_parallel_chunksize(previous)
+    _reconstruct_backward(*arrays, *settings, out, weight, grad_out, grads, buffer, margins, grad_neighbors, *scratch)
     grads_rows = buffer[:margins].reshape(batch, stored, height, width) if rows else None
     if rows:
         _add_margins(grads_rows, buffer, margins, bands, reach)

@@ -34,6 +34,8 @@ __all__ = [
     "read_only",
     "row_order",
     "scratch_for",
+    "work_counter",
+    "work_pieces",
 ]
 
 try:  # numba is a dependency; the guard keeps the pure ops usable where it cannot load.
@@ -433,3 +435,43 @@ def check_scratch(kernel: Any, layout: type) -> None:
 
 def _threads() -> int:
     return max(1, numba.get_num_threads())
+
+
+#: Pieces of work per thread that a kernel's workers take one at a time (`_take_next`): the last
+#: piece taken, which the others may wait for, is a sixteenth of a thread's share.
+_PIECES_PER_THREAD = 16
+
+
+def work_pieces(rows: int, threads: int) -> int:
+    """How many pieces a parallel loop over `rows` rows is cut into for `threads` workers."""
+    return max(1, min(rows, _PIECES_PER_THREAD * threads))
+
+
+def work_counter() -> np.ndarray:
+    """The count of pieces taken (`_take_next`), zero: one per kernel call."""
+    return np.zeros(1, dtype=np.int64)
+
+
+if numba is not None:
+
+    @_intrinsic
+    def _take_next(typingctx, taken):
+        """taken[0] += 1 as one atomic step; returns the value before. A parallel loop runs one
+        iteration per thread, each taking pieces of the work by this count until it passes their
+        number, so that a thread slowed by other work on its core takes fewer pieces, where a fixed
+        split of the range would wait for it (PyTorch's OpenMP workers spin for milliseconds after
+        each op, XLA's pool too). taken: a 1-element int64 array (`work_counter`)."""
+        if not (isinstance(taken, _types.Array) and taken.dtype == _types.int64):
+            return None
+
+        def codegen(context, builder, signature, args):
+            array = context.make_array(signature.args[0])(context, builder, args[0])
+            return builder.atomic_rmw("add", array.data, _ir.Constant(_ir.IntType(64), 1), "monotonic")
+
+        return _types.int64(taken), codegen
+
+else:  # pragma: no cover - without numba no kernel runs
+
+    def _take_next(taken):
+        taken[0] += 1
+        return taken[0] - 1
