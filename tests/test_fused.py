@@ -203,7 +203,7 @@ def test_band_turns_share_the_work_evenly(batch, tiles_y, threads, moving_rows):
     # each band's work recomputed here row by row from the tiles that the row crosses
     tile_costs = np.where(counts > 0, counts + reconstruct_kernel._TILE_COST_BESIDE_TAPS, reconstruct_kernel._EARLY_OUT_TILE_COST)
     costs = np.array([sum(tile_costs[row // height, row % height // tile].sum() for row in range(start, end)) for start, end in zip(bands[:-1], bands[1:])])
-    np.testing.assert_allclose(reconstruct_kernel.band_costs(bands, counts, height, tile), costs)
+    np.testing.assert_allclose(reconstruct_kernel._band_costs(bands, counts, height, tile), costs)
     assert np.all(np.diff(costs[turns]) <= 0)  # the most work first
     loads, tile_rows = np.zeros(threads), np.zeros(threads, dtype=int)
     for band in turns:  # the next band to the worker that is free first

@@ -343,10 +343,11 @@ def _reconstruct_forward(
     jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, weight_s, total_s, index_s, below_s, fx_s, fy_s, alpha_s,
 ):
     """chunks workers, one parallel iteration each, take the rows (in `order`) in `pieces` pieces
-    (`_take_next` on `taken`); the *_s scratch arrays hold one block per worker: (chunks, >= _BLOCK),
-    total_s (chunks, C, >= _BLOCK). own_odd and rows are ints (0 or 1): see the note above on aliases. rows = 1: every tap along
-    NeighborMax with a jitter constant per tile (the caller checked), read as shifted rows of the
-    flat images (*_flat; pairs unused); rows = 0: each pixel's tap read from `pairs`."""
+    (`_take_next` on `taken`); the *_s scratch arrays hold one block per worker: (chunks,
+    >= _BLOCK), total_s (chunks, C, >= _BLOCK). own_odd and rows are ints (0 or 1): see the note
+    above on aliases. rows = 1: every tap along NeighborMax with a jitter constant per tile (the
+    caller checked), read as shifted rows of the flat images (*_flat; pairs unused); rows = 0: each
+    pixel's tap read from `pairs`."""
     batch, channels, height, width = color.shape
     stored = channels + 3
     plane = height * width
@@ -1094,7 +1095,8 @@ _BANDS_PER_THREAD = 4
 
 #: The shifted-row backward's bands are at least this many times their reach high (`_bands`): their
 #: margins, 2 reach rows, at most half their own rows. Measured at 720p (kernels alone, 2 threads,
-#: 8 to 36 bands): the fastest count was the most bands of that height at 0, 30 and 90 degrees.
+#: 8 to 36 bands): the most bands of that height were the fastest count, or within the noise of
+#: it, at 0, 30 and 90 degrees (on one thread the count made no difference).
 _BAND_PER_REACH = 4
 
 #: The shifted-row backward's work per tile in units of one tap, for `_band_turns`: a tile with taps
@@ -1105,7 +1107,7 @@ _TILE_COST_BESIDE_TAPS = 2.0
 _EARLY_OUT_TILE_COST = 1.0
 
 
-def band_costs(bands: np.ndarray, counts: np.ndarray, height: int, tile: int) -> np.ndarray:
+def _band_costs(bands: np.ndarray, counts: np.ndarray, height: int, tile: int) -> np.ndarray:
     """Each shifted-row band's work, estimated from the taps per tile (B, TH, TW) of its tile rows."""
     tile_costs = np.where(counts > 0, counts + _TILE_COST_BESIDE_TAPS, _EARLY_OUT_TILE_COST).sum(axis=2)  # (B, TH)
     row_costs = tile_costs[:, np.arange(height) // tile].reshape(-1)  # per row b * H + y
@@ -1115,10 +1117,10 @@ def band_costs(bands: np.ndarray, counts: np.ndarray, height: int, tile: int) ->
 
 def _band_turns(bands: np.ndarray, counts: np.ndarray, height: int, tile: int) -> np.ndarray:
     """The order the shifted-row backward's workers take its bands in: the most work first
-    (`band_costs`), each worker the next band left when it is free, so that the last bands, the
+    (`_band_costs`), each worker the next band left when it is free, so that the last bands, the
     ones a worker may wait for, are the smallest. 720p's 36 tile rows in 8 bands of 4 and 5 go 18
     and 18 to 2 threads of one speed; taking every other band would give one 16 and the other 20."""
-    return np.argsort(-band_costs(bands, counts, height, tile), kind="stable").astype(np.int64)
+    return np.argsort(-_band_costs(bands, counts, height, tile), kind="stable").astype(np.int64)
 
 
 def _bands(neighbors: np.ndarray, height: int, tile: int, threads: int) -> tuple[np.ndarray, int]:
@@ -1126,9 +1128,9 @@ def _bands(neighbors: np.ndarray, height: int, tile: int, threads: int) -> tuple
     end): runs of whole tile rows of one image, so that a band owns its tiles' NeighborMax
     gradients; and their reach, the rows beyond a band that its taps read (|NeighborMax_y| and one
     for the bilinear read). As many bands as keep each at least `_BAND_PER_REACH` times its reach
-    high, and at least `_BANDS_PER_THREAD` per thread: a short band's rows of the output stay in
-    the core's cache between the zeroing that starts it and its taps' adds, but each band also
-    zeroes and adds the 2 reach rows of its margins."""
+    high, and at least `_BANDS_PER_THREAD` per thread: the threads take them one at a time, so
+    smaller bands let them end closer together, but each band also zeroes and adds the 2 reach rows
+    of its margins."""
     batch, _, tiles_y, _ = neighbors.shape
     largest = float(np.abs(neighbors[:, 1]).max()) if neighbors.size else 0.0
     reach = min(int(math.ceil(largest)) + 2, height)
