@@ -197,7 +197,9 @@ def test_band_turns_share_the_work_evenly(batch, tiles_y, threads, moving_rows):
     height = tiles_y * tile
     counts = np.zeros((batch, tiles_y, tiles_x), dtype=np.int32)
     counts[:, moving_rows] = 15
-    bands, _ = reconstruct_kernel._bands(np.zeros((batch, 2, tiles_y, tiles_x)), height, tile, threads)
+    neighbors = np.zeros((batch, 2, tiles_y, tiles_x))
+    neighbors[:, 1] = 40.0  # long vertical motion: the fewest bands, 4 per thread, of unequal heights
+    bands, _ = reconstruct_kernel._bands(neighbors, height, tile, threads)
     turns = reconstruct_kernel._band_turns(bands, counts, height, tile)
     assert sorted(turns.tolist()) == list(range(len(bands) - 1))  # every band once
     # each band's work recomputed here row by row from the tiles that the row crosses
@@ -212,7 +214,7 @@ def test_band_turns_share_the_work_evenly(batch, tiles_y, threads, moving_rows):
         tile_rows[worker] += -(-(bands[band + 1] - bands[band]) // tile)
     assert loads.max() <= loads.sum() / threads + costs.max() + 1e-9
     if (batch, tiles_y, threads, moving_rows) == (1, 36, 2, slice(None)):
-        assert tile_rows.tolist() == [18, 18]
+        assert np.diff(bands).tolist() == [80, 100] * 4 and tile_rows.tolist() == [18, 18]
 
 
 def test_shifted_rows_with_motion_across_several_bands():

@@ -1118,8 +1118,8 @@ def _band_costs(bands: np.ndarray, counts: np.ndarray, height: int, tile: int) -
 def _band_turns(bands: np.ndarray, counts: np.ndarray, height: int, tile: int) -> np.ndarray:
     """The order the shifted-row backward's workers take its bands in: the most work first
     (`_band_costs`), each worker the next band left when it is free, so that the last bands, the
-    ones a worker may wait for, are the smallest. 720p's 36 tile rows in 8 bands of 4 and 5 go 18
-    and 18 to 2 threads of one speed; taking every other band would give one 16 and the other 20."""
+    ones a worker may wait for, are the smallest. 720p's 36 tile rows in 8 bands of 4 and 5 (long
+    vertical motion) go 18 and 18 to 2 threads of one speed; every other band would give 16 and 20."""
     return np.argsort(-_band_costs(bands, counts, height, tile), kind="stable").astype(np.int64)
 
 
