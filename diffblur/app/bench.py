@@ -173,15 +173,16 @@ TARGET_SETTINGS: tuple[Setting, ...] = (
 )
 
 
-def uniform_scene(*, height: int = 128, width: int = 128):
+def uniform_scene(*, height: int = 128, width: int = 128, instants: int | None = None):
     """One opaque photograph under a horizontal camera pan: every pixel has the same velocity,
-    UNIFORM_HALF_SPREAD px (scaled down below 128 px). Returns `diffblur.scenes.SceneBuffers`."""
+    UNIFORM_HALF_SPREAD px (scaled down below 128 px). Returns `diffblur.scenes.SceneBuffers`;
+    instants: its target's (`render_buffers`), e.g. 1 where only the inputs are wanted."""
     half = UNIFORM_HALF_SPREAD * min(1.0, min(height, width) / 128.0)
     margin = int(math.ceil(half)) + 2
     color = photo("astronaut", height + 2 * margin, width + 2 * margin)
     layer = Layer(ImageTexture(color, None, (-margin, -margin)), 1.0, Static(), name="photograph")
     scene = Scene(height, width, (layer,), Camera(pan=(half, 0.0)))
-    return render_buffers(scene, name="uniform")
+    return render_buffers(scene, name="uniform", instants=instants)
 
 
 @dataclass
@@ -262,13 +263,15 @@ def _inputs(buffers) -> dict[str, np.ndarray]:
 
 
 class _TorchRunner:
-    def __init__(self) -> None:
-        import kornia
+    """PyTorch's calls on `device` ("cpu", "cuda"); on a GPU each call waits for the device's work
+    (`torch.cuda.synchronize`), so that a wall-clock time is the work's."""
+
+    def __init__(self, device: str = "cpu") -> None:
         import torch
 
         import torch_impl
 
-        self.torch, self.ops, self.kornia = torch, torch_impl, kornia
+        self.torch, self.ops, self.device = torch, torch_impl, torch.device(device)
 
     def measure(self, setting: Setting, x: dict[str, np.ndarray], repeats: int) -> dict:
         return _timed(self.prepare(setting, x), repeats)
@@ -276,12 +279,20 @@ class _TorchRunner:
     def prepare(self, setting: Setting, x: dict[str, np.ndarray]) -> dict:
         """The setting's forward and forward+backward calls, ready to time, and its output."""
         torch = self.torch
-        ops = self.kornia if setting.method.startswith("kornia") else self.ops
-        tensors = {k: torch.from_numpy(v) for k, v in x.items()}
+        if setting.method.startswith("kornia"):
+            import kornia
+
+            ops = kornia
+        else:
+            ops = self.ops
+        tensors = {k: torch.from_numpy(v).to(self.device) for k, v in x.items()}
+        wait = torch.cuda.synchronize if self.device.type == "cuda" else (lambda: None)
 
         def forward():
             with torch.no_grad():
-                return setting.call(ops, tensors)
+                out = setting.call(ops, tensors)
+            wait()
+            return out
 
         leaves = {k: v.clone().requires_grad_(k in setting.grad) for k, v in tensors.items()}
 
@@ -290,8 +301,9 @@ class _TorchRunner:
                 v.grad = None
             out = setting.call(ops, leaves)
             out.sum().backward()
+            wait()
 
-        return dict(output=forward().numpy(), forward=forward, backward=backward)
+        return dict(output=forward().cpu().numpy(), forward=forward, backward=backward)
 
 
 class _JaxRunner:
