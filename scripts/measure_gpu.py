@@ -2,7 +2,7 @@
 synchronisation inside `diffblur.without_host_reads`, and the speed of reconstruct (the design's
 aim: under 1 ms at 1920x1080) and gather_blur, in PyTorch and JAX.
 
-Made for a lent GPU machine's short lease: one command; the checks first (seconds), then the
+Made for a lent GPU machine's short lease: one command; the checks first, then the
 timings, the most wanted first; no timing starts after --budget seconds (the rows left say so),
 and DIR holds what is done after each step. The CPU side of the checks runs the tensor ops
 (`impl="tensor"`), which the suite checks against the fused CPU kernels to float64 rounding, so
@@ -10,8 +10,9 @@ nothing here compiles those kernels (numba: minutes on a cold cache).
 
     PYTHONPATH=. python scripts/measure_gpu.py --out DIR [--device cuda] [--budget 300] [--write]
 
-DIR gets gpu.json and gpu.md, the section "GPU" of BENCHMARKS.md (`--write` puts it there). Exit
-status 1 when a check fails. `--device cpu` runs the same on the CPU: the test suite does so at a
+DIR gets gpu.json and gpu.md, the section "GPU" of BENCHMARKS.md (`--write` puts it there; where
+the run's files come back from another machine, `--render DIR/gpu.json --write`). Exit status 1
+when a check fails. `--device cpu` runs the same on the CPU: the test suite does so at a
 tiny size (tests/test_measure_gpu.py).
 
 Checks, float64, the inputs of `op_cases.py` at CHECK_SHAPE, each case of `op_cases.CASES` and a
@@ -367,6 +368,12 @@ def markdown(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def write_section(text: str) -> None:
+    from diffblur.app.bench import replace_section
+
+    replace_section(str(ROOT / "BENCHMARKS.md"), "## GPU", text)
+
+
 def save(results: dict, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     (out / "gpu.json").write_text(json.dumps(results, indent=1))
@@ -375,7 +382,8 @@ def save(results: dict, out: Path) -> None:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, required=True, help="folder for gpu.json and gpu.md")
+    parser.add_argument("--out", type=Path, help="folder for gpu.json and gpu.md (required unless --render)")
+    parser.add_argument("--render", type=Path, help="a run's gpu.json (one brought back from a GPU machine): print its section, with --write put it into BENCHMARKS.md, run nothing")
     parser.add_argument("--device", default="cuda", choices=("cuda", "cpu"))
     parser.add_argument("--frameworks", default="torch,jax")
     parser.add_argument("--budget", type=float, default=300.0, help="seconds after which no timing starts")
@@ -385,6 +393,14 @@ def main() -> int:
     parser.add_argument("--no-compile", action="store_true", help="leave out torch.compile")
     parser.add_argument("--write", action="store_true", help="put the section into BENCHMARKS.md")
     args = parser.parse_args()
+    if args.render:
+        text = markdown(json.loads(args.render.read_text()))
+        print(text, end="")
+        if args.write:
+            write_section(text)
+        return 0
+    if args.out is None:
+        parser.error("--out is required (or --render a run's gpu.json)")
     os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")  # JAX leaves PyTorch its share of the GPU
     frameworks = tuple(f for f in args.frameworks.split(",") if f)
     if "jax" in frameworks:
@@ -424,9 +440,7 @@ def main() -> int:
     text = markdown(results)
     print(text, end="")
     if args.write:
-        from diffblur.app.bench import replace_section
-
-        replace_section(str(ROOT / "BENCHMARKS.md"), "## GPU", text)
+        write_section(text)
     return 0 if all(row["passed"] for row in results["checks"]) else 1
 
 

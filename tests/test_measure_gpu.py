@@ -24,7 +24,7 @@ CASES = ("reconstruct", "gather_blur", "MotionBlur reconstruct", "reconstruct ji
 
 
 @pytest.mark.slow
-def test_the_script_checks_times_and_writes_its_section(tmp_path):
+def test_the_script_checks_times_and_writes_its_section(tmp_path, monkeypatch, capsys):
     run = subprocess.run(
         [sys.executable, "scripts/measure_gpu.py", "--out", str(tmp_path), "--device", "cpu", "--sizes", "24x32", "--repeats", "1", "--no-compile", "--only", ",".join(CASES)],
         cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=600,
@@ -44,6 +44,9 @@ def test_the_script_checks_times_and_writes_its_section(tmp_path):
     assert section.startswith("## GPU\n") and section == run.stdout
     assert all(f"| {case} |" in section for case in CASES)
     assert "under 1 ms" not in section  # the target line is for 1920x1080 only
+    monkeypatch.setattr(sys, "argv", ["measure_gpu.py", "--render", str(tmp_path / "gpu.json")])
+    assert measure_gpu.main() == 0
+    assert capsys.readouterr().out == section
 
 
 def test_a_difference_on_the_device_fails_the_check(monkeypatch):
