@@ -222,7 +222,7 @@ def timing_jobs(sizes: tuple[tuple[int, int], ...], frameworks: tuple[str, ...],
     """The timings in the order they run, the most wanted first: at the first size reconstruct
     without and with the jitter, then compiled by torch.compile (on a GPU eager PyTorch launches a
     kernel per tensor op: the 1 ms aim may need the compiled form), then with the data checks, then
-    gather_blur; then the same at the other sizes, with kornia."""
+    gather_blur and kornia (where installed); then the same at the other sizes, torch.compile aside."""
     reconstruct, gather = TIMED[:2], TIMED[2:]
     jobs = []
 
@@ -235,7 +235,7 @@ def timing_jobs(sizes: tuple[tuple[int, int], ...], frameworks: tuple[str, ...],
             add(size, reconstruct, "torch.compile", ("torch",))
         add(size, reconstruct[1:], "data checks")
         add(size, gather, "without_host_reads")
-        if kornia and index > 0:
+        if kornia:
             add(size, (KORNIA,), "eager", ("torch",))
     return jobs
 
