@@ -31,7 +31,9 @@ gradient of the output's sum w.r.t. the floating inputs) in turns, the median of
 warm-up, each call waiting for the device. PyTorch eager and JAX `jax.jit`, each inside
 `without_host_reads` (what a GPU user runs: no data checks, no waiting) and, for the default
 reconstruct, with the data checks; `torch.compile(fullgraph=True)` of reconstruct's forward, its
-compile time too; kornia's `motion_blur` (kernel 31) where kornia is installed.
+compile time too; kornia's `motion_blur` (kernel 31) where kornia is installed. With each, the
+memory of a forward+backward (the design asks O(pixels)): PyTorch's peak GPU allocation, JAX's
+compiled temporaries.
 """
 
 from __future__ import annotations
@@ -268,13 +270,20 @@ def run_timing(job: dict, device: str, x: dict, repeats: int) -> dict:
         with jax.default_device(jax_device(device)), diffblur.without_host_reads() if hostless else nullcontext():
             prepared = _JaxRunner().prepare(setting, x)  # traced and compiled here, inside the mode
         forward, backward = median_ms_each([prepared["forward"], prepared["backward"]], repeats)
-        return dict(forward_ms=forward, backward_ms=backward, compile_s=prepared["compile_s"] + prepared["compile_backward_s"])
+        return dict(forward_ms=forward, backward_ms=backward, compile_s=prepared["compile_s"] + prepared["compile_backward_s"], memory_mb=prepared["xla_temp_mb"])
+    import torch
+
     runner = _TorchRunner(device)
     if job["mode"] != "torch.compile":
         prepared = runner.prepare(setting, x)
         forward, backward = median_ms_each([inside(prepared["forward"]), inside(prepared["backward"])], repeats)
-        return dict(forward_ms=forward, backward_ms=backward, compile_s=None)
-    import torch
+        memory_mb = None
+        if runner.device.type == "cuda":  # the peak of one forward+backward above what was allocated before it
+            before = torch.cuda.memory_allocated()
+            torch.cuda.reset_peak_memory_stats()
+            inside(prepared["backward"])()
+            memory_mb = (torch.cuda.max_memory_allocated() - before) / 2**20
+        return dict(forward_ms=forward, backward_ms=backward, compile_s=None, memory_mb=memory_mb)
 
     import torch_impl
 
@@ -290,7 +299,7 @@ def run_timing(job: dict, device: str, x: dict, repeats: int) -> dict:
     started = time.perf_counter()
     inside(forward)()
     compile_s = time.perf_counter() - started
-    return dict(forward_ms=median_ms(inside(forward), repeats), backward_ms=None, compile_s=compile_s)
+    return dict(forward_ms=median_ms(inside(forward), repeats), backward_ms=None, compile_s=compile_s, memory_mb=None)
 
 
 # ---------------------------------------------------------------------------------------- report
@@ -348,18 +357,20 @@ def markdown(results: dict) -> str:
         "",
         "Timings: float32, the bench's uniform scene, forward and forward+backward in turns, median of "
         f"{results['repeats']} after a warm-up, each call waiting for the device; compile s: JAX's forward and "
-        "forward+backward, torch.compile's first forward.",
+        "forward+backward, torch.compile's first forward; memory MB: PyTorch's peak GPU allocation during one "
+        "forward+backward above what was allocated before it, JAX's compiled temporaries (XLA's memory_analysis).",
         "",
-        "| size | method | setting | framework | mode | forward ms | fwd+bwd ms | compile s |",
-        "|---|---|---|---|---|---:|---:|---:|",
+        "| size | method | setting | framework | mode | forward ms | fwd+bwd ms | compile s | memory MB |",
+        "|---|---|---|---|---|---:|---:|---:|---:|",
     ]
     for row in results["timings"]:
         size = f"{row['size'][1]}x{row['size'][0]}"
         if "skipped" in row or "error" in row:
-            lines.append(f"| {size} | {row['method']} | {row['setting']} | {row['framework']} | {row['mode']} | {row.get('skipped') or row['error']} | | |")
+            lines.append(f"| {size} | {row['method']} | {row['setting']} | {row['framework']} | {row['mode']} | {row.get('skipped') or row['error']} | | | |")
             continue
         compile_s = "-" if row["compile_s"] is None else f"{row['compile_s']:.1f}"
-        lines.append(f"| {size} | {row['method']} | {row['setting']} | {row['framework']} | {row['mode']} | {_ms(row['forward_ms'])} | {_ms(row['backward_ms'])} | {compile_s} |")
+        memory = "-" if row.get("memory_mb") is None else f"{row['memory_mb']:.1f}"
+        lines.append(f"| {size} | {row['method']} | {row['setting']} | {row['framework']} | {row['mode']} | {_ms(row['forward_ms'])} | {_ms(row['backward_ms'])} | {compile_s} | {memory} |")
     best = [r for r in results["timings"] if r.get("forward_ms") is not None and r["method"] == "reconstruct" and tuple(r["size"]) == TARGET_SIZE]
     if best:
         fastest = min(best, key=lambda r: r["forward_ms"])
