@@ -177,7 +177,6 @@ def test_jax_shutter_parameter_and_extent_gradients_under_jit():
         np.testing.assert_allclose(float(f), float(p), rtol=1e-10)
 
 
-@pytest.mark.filterwarnings("ignore:bezier_scatter\\(fill='still'\\) found no still pixel")
 @pytest.mark.parametrize("band", [dict(), dict(relative_z_extent=0.05)])
 def test_instants_without_a_still_pixel(band):
     """composite="instants" in an image without a still pixel fills each instant from its own
@@ -343,6 +342,7 @@ def test_jax_forward_mode_needs_fused_false():
     assert np.isfinite(np.asarray(pure)).all()
 
 
+@pytest.mark.filterwarnings("ignore:recover\\(model='rotation'\\) did not converge:UserWarning")  # one step: the path is the point
 def test_fitting_rotation_with_forward_mode_jacobians_takes_the_tensor_ops():
     """fitting's Levenberg-Marquardt with jac="fwd" (JAX jvp) runs the arc scatter: it must not meet
     the custom_vjp, so the rotation model passes impl="tensor" there."""

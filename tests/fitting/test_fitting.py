@@ -15,6 +15,10 @@ import fitting
 from diffblur.shutters import LinearRamp
 from fitting import scenes
 
+#: The fits below stop after a few iterations to keep the suite fast: their assertions check the
+#: answer, so recover's "did not converge" warning says nothing here.
+CAPPED = pytest.mark.filterwarnings("ignore:recover\\(model='\\w+'\\) did not converge:UserWarning")
+
 
 def _up_to_sign(found, expected) -> float:
     found, expected = np.asarray(found), np.asarray(expected)
@@ -92,7 +96,7 @@ def test_coarse_to_fine_converges_from_far_where_a_single_scale_does_not():
     fitting/measure.py)."""
     s, _, truth = scenes.translation(32, (3.0, 1.0), margin=32)
     options = dict(model="global", method="gather", samples=15, init={"velocity": (3.0, 17.0)}, solver="adam", iterations=40)
-    with pytest.warns(UserWarning, match="did not converge"):
+    with pytest.warns(UserWarning, match="explains only"), pytest.warns(UserWarning, match="did not converge"):
         single = fitting.recover(s.color, s.target, levels=1, **options)
     with pytest.warns(UserWarning, match="did not converge: adam ran its 40 steps"):
         pyramid = fitting.recover(s.color, s.target, levels=3, **options)
@@ -100,6 +104,7 @@ def test_coarse_to_fine_converges_from_far_where_a_single_scale_does_not():
     assert _up_to_sign(pyramid.params["velocity"], truth["velocity"]) < 0.1, pyramid.params
 
 
+@CAPPED
 def test_torch_and_jax_recover_the_same_velocity():
     s, _, truth = scenes.translation(24, (2.0, 1.0))
     options = dict(model="global", method="gather", samples=9, iterations=12)
@@ -120,6 +125,7 @@ def test_motion_ids_velocities_within_a_quarter_pixel():
         assert _up_to_sign(found, expected) < 0.25, result.params
 
 
+@CAPPED
 def test_rotation_angle_within_two_percent():
     s, _, truth = scenes.propeller(32, 0.5)
     result = fitting.recover(s.color, s.target, depth=s.depth, model=fitting.Rotation(background=s.background), solver="lbfgs", iterations=12, init={"angle": 0.3})
@@ -137,6 +143,7 @@ def test_camera_pan_with_parallax():
     assert abs(result.params["roll"]) < 0.02 and abs(result.params["advance"]) < 0.05, result.params
 
 
+@CAPPED
 def test_tiles_fit_a_translation(translation32):
     s, _, truth = translation32
     start = np.broadcast_to(np.reshape([2.0, -1.0], (2, 1, 1)), (2, 3, 3))
@@ -147,6 +154,7 @@ def test_tiles_fit_a_translation(translation32):
     assert _up_to_sign(centre, truth["velocity"]) < 0.5, centre
 
 
+@CAPPED
 def test_dense_field_lowers_the_loss_and_its_prior_is_total_variation(translation32):
     """A per-pixel field: the loss falls; the prior's residuals square to tv_weight x mean
     sqrt(d^2 + eps) of the field's differences (0 differences: sqrt(eps))."""

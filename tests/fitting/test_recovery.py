@@ -72,7 +72,7 @@ def test_exposure_through_the_scatter_within_one_percent(square):
 
 
 def test_a_global_fit_of_a_scene_it_cannot_explain_warns(square):
-    with pytest.warns(UserWarning, match=r"recover\(model='global'\) explains only"):
+    with pytest.warns(UserWarning, match=r"recover\(model='global'\) explains only"), pytest.warns(UserWarning, match="biased by the method's own error"):
         result = fitting.recover(square.color, square.target, depth=square.depth, model="global", method="gather")
     assert result.explained < 0.5
 
@@ -143,6 +143,7 @@ def test_torch_and_jax_reach_the_same_parameters(problem):
     assert found["torch"].converged == found["jax"].converged
 
 
+@pytest.mark.filterwarnings("ignore:recover\\(model='layers'\\) did not converge:UserWarning")  # the gather's bias on this scene: the options are the point
 def test_a_model_object_carries_its_options_and_a_name_is_its_defaults(square):
     """fitting.Layers(ratio=...) is used as given and left unchanged; "layers" is Layers()."""
     model = fitting.Layers(ratio=1.5)
