@@ -39,6 +39,7 @@ compiled temporaries.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import platform
@@ -397,7 +398,7 @@ def main() -> int:
     parser.add_argument("--render", type=Path, help="a run's gpu.json (one brought back from a GPU machine): print its section, with --write put it into BENCHMARKS.md, run nothing")
     parser.add_argument("--device", default="cuda", choices=("cuda", "cpu"))
     parser.add_argument("--frameworks", default="torch,jax")
-    parser.add_argument("--budget", type=float, default=300.0, help="seconds after which no timing starts")
+    parser.add_argument("--budget", type=float, default=300.0, help="seconds from the start after which no timing starts")
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--sizes", default="", help="HxW,... in place of 1080x1920,720x1280 (e.g. a tiny size for a test)")
     parser.add_argument("--only", default="", help="comma-separated check cases (default: all)")
@@ -429,7 +430,7 @@ def main() -> int:
     save(results, args.out)
     if "jax" in frameworks:
         jax.config.update("jax_enable_x64", False)  # the timings as `diffblur bench` runs them
-    kornia = "torch" in frameworks and __import__("importlib.util").util.find_spec("kornia") is not None
+    kornia = "torch" in frameworks and importlib.util.find_spec("kornia") is not None
     scenes = {}
     for job in timing_jobs(sizes, frameworks, kornia, not args.no_compile):
         row = {**job}
