@@ -111,9 +111,12 @@ def test_rows_wider_than_one_block(case):
 
 
 @pytest.mark.parametrize("jitter", ["none", "per pair of tiles"])
-def test_shifted_rows_across_tiles_of_one_motion(jitter):
+def test_shifted_rows_across_tiles_of_one_motion(jitter, monkeypatch):
     """A pan: neighbouring tiles share NeighborMax, so the shifted rows read runs of several tiles at
-    once (cut where the jitter or the motion changes, at the block's end and at the border)."""
+    once (cut where the jitter or the motion changes, at the block's end and at the border). The
+    backward's blocks (`_ROW_BLOCK`, 640 px) shortened to 110 px here: a row of three, the last
+    partial, and a block's end inside a tile."""
+    monkeypatch.setattr(reconstruct_kernel, "_ROW_BLOCK", 110)
     width, tile = _BLOCK + 23, 4
     color, velocity, depth, cotangent = _scene(width=width)
     velocity[...] = np.array([3.3, 0.6]).reshape(1, 2, 1, 1)

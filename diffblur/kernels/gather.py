@@ -16,6 +16,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from diffblur.kernels.shared import (
+    _BLOCK,
     ChannelFloats,
     Floats,
     Ints,
@@ -107,7 +108,7 @@ def _gather_forward(pairs, velocity, counts, masses, tile, order, pieces, taken,
                     image_start = b * height * width * channels
                     start = 0
                     while start < width:
-                        end = _block_end(counts, b, y // tile, start, width, tile)
+                        end = _block_end(counts, b, y // tile, start, width, tile, _BLOCK)
                         size = end - start
                         count = counts[b, y // tile, start // tile]
                         if count == 0:  # the image
@@ -168,7 +169,7 @@ def _gather_backward(
             image_start = b * height * width * channels
             start = 0
             while start < width:
-                end = _block_end(counts, b, y // tile, start, width, tile)
+                end = _block_end(counts, b, y // tile, start, width, tile, _BLOCK)
                 size = end - start
                 count = counts[b, y // tile, start // tile]
                 if count == 0:  # out = C[X]

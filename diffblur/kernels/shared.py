@@ -312,14 +312,14 @@ def _color_pairs(color: np.ndarray) -> np.ndarray:
 
 
 @_inline
-def _block_end(counts, b, tile_y, start, width, tile):
+def _block_end(counts, b, tile_y, start, width, tile, block):
     """Where the block that starts at column `start` ends: the run of tiles with the count of
-    `start`'s tile, at most _BLOCK pixels."""
+    `start`'s tile, at most `block` pixels (_BLOCK; the shifted-row backward's are longer)."""
     count = counts[b, tile_y, start // tile]
     end = min((start // tile + 1) * tile, width)
-    while end < width and end - start < _BLOCK and counts[b, tile_y, end // tile] == count:
+    while end < width and end - start < block and counts[b, tile_y, end // tile] == count:
         end = min(end + tile, width)
-    return min(end, start + _BLOCK)
+    return min(end, start + block)
 
 
 @_inline
@@ -400,9 +400,9 @@ GradientFloats = NewType("GradientFloats", np.ndarray)
 Scratch = TypeVar("Scratch")
 
 
-def _scratch_shapes(chunks: int, channels: int, floats: Any) -> dict:
-    """Each scratch kind's array shape and dtype."""
-    row = _BLOCK + _SCRATCH_GAP
+def _scratch_shapes(chunks: int, channels: int, floats: Any, block: int = _BLOCK) -> dict:
+    """Each scratch kind's array shape and dtype, for blocks of at most `block` pixels."""
+    row = block + _SCRATCH_GAP
     return {
         Floats: ((chunks, row), floats),
         Ints: ((chunks, row), np.int64),
@@ -411,11 +411,11 @@ def _scratch_shapes(chunks: int, channels: int, floats: Any) -> dict:
     }
 
 
-def scratch_for(layout: type[Scratch], chunks: int, channels: int, floats: Any = np.float64) -> Scratch:
+def scratch_for(layout: type[Scratch], chunks: int, channels: int, floats: Any = np.float64, block: int = _BLOCK) -> Scratch:
     """A fresh `layout` (a kernel's scratch named tuple), each field an uninitialised array of its
-    annotated kind (`_scratch_shapes`), the floating ones of dtype `floats`. The kernel takes it as
-    `*scratch`."""
-    shapes = _scratch_shapes(chunks, channels, floats)
+    annotated kind (`_scratch_shapes`), the floating ones of dtype `floats`, for blocks of at most
+    `block` pixels. The kernel takes it as `*scratch`."""
+    shapes = _scratch_shapes(chunks, channels, floats, block)
     kinds = get_type_hints(layout)
     return layout(*(np.empty(*shapes[kinds[name]]) for name in layout._fields))
 
