@@ -84,7 +84,7 @@ def test_past_the_budget_the_timings_say_they_were_not_run(tmp_path, monkeypatch
 
 
 def _empty() -> dict:
-    return {"environment": {"date": "now", "python": "3", "device": "cpu"}, "repeats": 1, "checks": [], "timings": [], "seconds": 0.0}
+    return {"environment": measure_gpu.environment("cpu", ()), "repeats": 1, "checks": [], "timings": [], "seconds": 0.0}
 
 
 def test_a_host_callback_in_the_compiled_program_is_found(monkeypatch):
