@@ -186,3 +186,20 @@ def test_fit_boundary_reaches_the_model_and_is_refused_where_it_means_nothing(tm
     assert type(seen["model"]).__name__ == "MotionIds" and seen["model"].boundary == 3.0
     assert main(["fit", *files, "--model", "global", "--boundary", "3", "--no-progress"]) == 2
     assert "--boundary is an option of models motion_ids and layers, not of 'global'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "velocity, exposure, warned",
+    [(("1e9", "0"), "1", True), (("20", "0"), "2", True), (("20", "0"), "1", False), (("0", "-33"), "1", True), (("3", "4"), "1", False)],
+)
+def test_a_blur_longer_than_the_photograph_is_written_with_a_warning(tmp_path, photo, capsys, velocity, exposure, warned):
+    """The 32x24 photo: a reach (speed x exposure) over 32 px warns on stderr, and the picture is
+    still written (the ops take any finite velocity)."""
+    out = tmp_path / "out.png"
+    assert main(["blur", str(photo), "-o", str(out), "--velocity", *velocity, "--exposure", exposure]) == 0
+    err = capsys.readouterr().err
+    assert out.exists()
+    if warned:
+        assert re.search(r"warning: the blur reaches [\d.e+]+ px each way \(velocity x exposure\), more than the 32x24 photograph", err), err
+    else:
+        assert "warning" not in err, err

@@ -51,6 +51,7 @@ __all__ = [
     "load_inputs",
     "method_options",
     "read_picture",
+    "spread_warning",
     "write_picture",
 ]
 
@@ -203,6 +204,20 @@ def load_inputs(
         depth = np.ones((1, height, width))
     as_batch = lambda a: np.ascontiguousarray(a[None], dtype=np.float32)  # noqa: E731
     return BlurInputs(as_batch(color), as_batch(field), as_batch(depth))
+
+
+def spread_warning(reach: float, height: int, width: int) -> str | None:
+    """A sentence when the blur's reach (the largest speed times the exposure, in pixels, each way)
+    is longer than the photograph: the outer taps of every pixel then read past the border, which
+    clamps, so much of the picture becomes a smear of its border colours. Legal (the ops take any
+    finite velocity) but seldom meant: a velocity in the wrong unit, say. None when it fits."""
+    if not reach > max(height, width):  # also None for a NaN, which the op refuses with its own error
+        return None
+    return (
+        f"the blur reaches {reach:.3g} px each way (velocity x exposure), more than the {width}x{height} photograph: "
+        "reads past the border take the border's colour, so much of the result is a smear of the border. "
+        "Velocities are in pixels of this photograph (--velocity-image scales by --max-speed)"
+    )
 
 
 def blur_image(inputs: BlurInputs, *, method: str = "reconstruct", backend: str = "torch", exposure: float = 1.0, **options) -> np.ndarray:

@@ -25,7 +25,7 @@ def _gallery(args: argparse.Namespace) -> int:
 
 
 def _blur(args: argparse.Namespace) -> int:
-    from diffblur.app.blur_image import DEPTH_METHODS, blur_image, check_output_path, default_method, load_inputs, method_options, write_picture
+    from diffblur.app.blur_image import DEPTH_METHODS, blur_image, check_output_path, default_method, load_inputs, method_options, spread_warning, write_picture
 
     # Everything the command line decides is checked before the photograph is read and blurred.
     depth_given = args.depth_file is not None or args.depth_image is not None
@@ -44,10 +44,13 @@ def _blur(args: argparse.Namespace) -> int:
         depth_file=args.depth_file,
         depth_image=args.depth_image,
     )
-    blurred = blur_image(inputs, method=method, backend=args.backend, exposure=args.exposure, **options)
-    write_picture(args.out, blurred)
     height, width = inputs.color.shape[2:]
     speed = float(np.hypot(*inputs.velocity[0]).max())
+    warning = spread_warning(speed * args.exposure, height, width)
+    if warning is not None:
+        print(f"diffblur blur: warning: {warning}", file=sys.stderr)
+    blurred = blur_image(inputs, method=method, backend=args.backend, exposure=args.exposure, **options)
+    write_picture(args.out, blurred)
     print(f"blurred {args.image} ({width}x{height}, up to {speed:.1f} px) with {method} on {args.backend}: wrote {args.out}")
     return 0
 
