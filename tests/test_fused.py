@@ -388,11 +388,14 @@ def test_both_frameworks_run_one_compiled_kernel_per_dtype():
     ones (PyTorch's): both frameworks must reach the kernels with one type, or every kernel is
     compiled twice in a process that runs both."""
     arrays = _scene()
-    _torch_run(arrays, CASES["default"], impl="fused")
-    _jax_run(arrays, CASES["default"], impl="fused")
+    for case in ("default", "no jitter"):
+        _torch_run(arrays, CASES[case], impl="fused")
+        _jax_run(arrays, CASES[case], impl="fused")
     for kernel in (reconstruct_kernel._reconstruct_forward, reconstruct_kernel._reconstruct_backward):
-        float64_types = {signature for signature in kernel.signatures if str(signature[1].dtype) == "float64"}
-        assert len(float64_types) == 1, float64_types
+        float64_types = {signature for signature in kernel.signatures if str(signature[4].dtype) == "float64"}  # 4: color
+        # Each path is a signature of its own (pairs None on shifted rows): one each.
+        paths = [str(signature[0]) == "none" for signature in float64_types]
+        assert sorted(paths) == [False, True], float64_types
 
 
 @pytest.mark.parametrize("wanted", [("velocity",), ("color",), ("depth",), ("color", "depth")])

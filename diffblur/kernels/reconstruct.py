@@ -18,7 +18,8 @@ Scope, checked by `reconstruct_unfused_reason`: bilinear sampling, the box shutt
 float64, no pyramid. The tap count is per tile (`counts`), which is how adaptive sampling and the
 early-out run here: a tile with count 0 returns the image and costs one copy.
 
-Two ways to read the taps, chosen per call by `shifted_rows`:
+Two ways to read the taps, chosen per call by `shifted_rows`, each compiled as a kernel of its own
+(which arguments are None picks it; see `_reconstruct_backward`):
 
 - Shifted rows, when every tile's taps share their offsets (no jitter, or one constant per tile,
   and every tap along NeighborMax, which is constant over a tile): tap k of a tile is the tile's
@@ -340,15 +341,16 @@ def _block_state(velocity, depth, neighbors, jitter, b, jb, y, start, end, tile,
 
 @_jit
 def _reconstruct_forward(
-    pairs, color_flat, velocity_flat, depth_flat, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, rows, order, chunks, pieces, taken, out, weight,
+    pairs, color_flat, velocity_flat, depth_flat, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order, chunks, pieces, taken, out, weight,
     jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, weight_s, total_s, index_s, below_s, fx_s, fy_s, alpha_s,
 ):
     """chunks workers, one parallel iteration each, take the rows (in `order`) in `pieces` pieces
     (`_take_next` on `taken`); the *_s scratch arrays hold one block per worker: (chunks,
-    >= _BLOCK), total_s (chunks, C, >= _BLOCK). own_odd and rows are ints (0 or 1): see the note
-    above on aliases. rows = 1: every tap along NeighborMax with a jitter constant per tile (the
-    caller checked), read as shifted rows of the flat images (*_flat; pairs unused); rows = 0: each
-    pixel's tap read from `pairs`."""
+    >= _BLOCK), total_s (chunks, C, >= _BLOCK). own_odd is an int (0 or 1): see the note above on
+    aliases. Shifted rows (pairs None): every tap along NeighborMax with a jitter constant per tile
+    (the caller checked), read as shifted rows of the flat images (*_flat); per pixel (*_flat None):
+    each pixel's tap read from `pairs`. As in the backward, the None picks the path when numba
+    compiles, each into a kernel of its own."""
     batch, channels, height, width = color.shape
     stored = channels + 3
     plane = height * width
@@ -392,7 +394,7 @@ def _reconstruct_forward(
                         for k in range(count):
                             if k == middle:
                                 continue
-                            if rows != 0:  # shifted rows: one offset per tile segment
+                            if color_flat is not None:  # shifted rows (None per pixel, whose kernel compiles without this): one offset per tile segment
                                 segment = start
                                 while segment < end:
                                     segment_end = _segment_end(segment, start, end, tile, chunk, jitter_s, nx_s, ny_s)
@@ -446,29 +448,30 @@ def _reconstruct_forward(
                                                 total_s[chunk, c, u] += alpha_s[chunk, u] * c_y
                                     segment = segment_end
                                 continue
-                            own = own_odd * (k % 2)
-                            for p in range(size):  # vectorized: no branches, gathers
-                                t = -1.0 + (k + jitter_s[chunk, p] + 1.0) * step
-                                dx = vx_s[chunk, p] if own != 0 else nx_s[chunk, p]
-                                dy = vy_s[chunk, p] if own != 0 else ny_s[chunk, p]
-                                speed = length_x_s[chunk, p] if own != 0 else speed_n_s[chunk, p]
-                                column, row0, fx, fy, _, _ = _tap_corner((start + p) + dx * t, y + dy * t, last_x, last_y)
-                                index = image_start + (row0 * width + column) * stored
-                                below_pair = width * stored if row0 < height - 1 else 0
-                                index_s[chunk, p] = index
-                                below_s[chunk, p] = below_pair
-                                fx_s[chunk, p] = fx
-                                fy_s[chunk, p] = fy
-                                v_yx = _pair_read(pairs, index + channels, below_pair, fx, fy)
-                                v_yy = _pair_read(pairs, index + channels + 1, below_pair, fx, fy)
-                                z_y = _pair_read(pairs, index + channels + 2, below_pair, fx, fy)
-                                alpha = _tap_alpha(z_x_s[chunk, p], z_y, v_yx, v_yy, abs(t) * speed, inverse_x_s[chunk, p], min_radius, extent, inverse_extent)
-                                alpha_s[chunk, p] = alpha
-                                weight_s[chunk, p] += alpha
-                            for c in range(channels):
-                                for p in range(size):  # vectorized
-                                    read = _pair_read(pairs, index_s[chunk, p] + c, below_s[chunk, p], fx_s[chunk, p], fy_s[chunk, p])
-                                    total_s[chunk, c, p] += alpha_s[chunk, p] * read
+                            if pairs is not None:  # per pixel (pairs is None on shifted rows, whose kernel compiles without this)
+                                own = own_odd * (k % 2)
+                                for p in range(size):  # vectorized: no branches, gathers
+                                    t = -1.0 + (k + jitter_s[chunk, p] + 1.0) * step
+                                    dx = vx_s[chunk, p] if own != 0 else nx_s[chunk, p]
+                                    dy = vy_s[chunk, p] if own != 0 else ny_s[chunk, p]
+                                    speed = length_x_s[chunk, p] if own != 0 else speed_n_s[chunk, p]
+                                    column, row0, fx, fy, _, _ = _tap_corner((start + p) + dx * t, y + dy * t, last_x, last_y)
+                                    index = image_start + (row0 * width + column) * stored
+                                    below_pair = width * stored if row0 < height - 1 else 0
+                                    index_s[chunk, p] = index
+                                    below_s[chunk, p] = below_pair
+                                    fx_s[chunk, p] = fx
+                                    fy_s[chunk, p] = fy
+                                    v_yx = _pair_read(pairs, index + channels, below_pair, fx, fy)
+                                    v_yy = _pair_read(pairs, index + channels + 1, below_pair, fx, fy)
+                                    z_y = _pair_read(pairs, index + channels + 2, below_pair, fx, fy)
+                                    alpha = _tap_alpha(z_x_s[chunk, p], z_y, v_yx, v_yy, abs(t) * speed, inverse_x_s[chunk, p], min_radius, extent, inverse_extent)
+                                    alpha_s[chunk, p] = alpha
+                                    weight_s[chunk, p] += alpha
+                                for c in range(channels):
+                                    for p in range(size):  # vectorized
+                                        read = _pair_read(pairs, index_s[chunk, p] + c, below_s[chunk, p], fx_s[chunk, p], fy_s[chunk, p])
+                                        total_s[chunk, c, p] += alpha_s[chunk, p] * read
                         for c in range(channels):
                             for p in range(size):  # vectorized
                                 out[b, c, y, np.uint64(start + p)] = total_s[chunk, c, p] / weight_s[chunk, p]
@@ -479,11 +482,12 @@ def _reconstruct_forward(
 
 
 @_inline
-def _add_own(grads, grads_rows, rows, chunk, b, y, start, size, k, value_s, stored, plane, width):
+def _add_own(grads, grads_rows, chunk, b, y, start, size, k, value_s, stored, plane, width):
     """Add value_s[chunk, k, p] to input channel k's gradient at the pixels (y, start + p) of image b,
-    p < size: into the planar flat (B, stored, H, W) `grads_rows` when rows = 1 (one contiguous
-    vector add into the band's own row), into chunk `chunk`'s interleaved `grads` else."""
-    if rows != 0:
+    p < size: into the planar flat (B, stored, H, W) `grads_rows` on shifted rows (one contiguous
+    vector add into the band's own row), into chunk `chunk`'s interleaved `grads` when it is None
+    (per pixel)."""
+    if grads_rows is not None:
         at = np.uint64((b * stored + k) * plane + y * width + start)
         for p in range(np.uint64(size)):  # vectorized
             grads_rows[at + p] += value_s[chunk, k, p]
@@ -594,7 +598,7 @@ def _border_run_backward(
 
 @_jit
 def _reconstruct_backward(
-    pairs, color_flat, velocity_flat, depth_flat, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, rows, order,
+    pairs, color_flat, velocity_flat, depth_flat, color, velocity, depth, neighbors, counts, jitter, tile, extent, min_radius, own_odd, order,
     scatter, bands, turns, workers, taken, reach, block, out, weight, grad_out, grads, grads_rows, margins, grad_neighbors,
     jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s, g_total_s, g_out_s,
     column_s, row_s, t_s, fx_s, fy_s, inside_x_s, inside_y_s, g_alpha_s, slope_x_s, slope_y_s, alpha_s, tap_grads_s,
@@ -612,14 +616,18 @@ def _reconstruct_backward(
     (chunks, C + 3, >= block), per input channel: the current tap's gradient w.r.t. the values it
     read, and the gradient w.r.t. the pixel's own values (the centre's colours, V[X], Z[X]).
 
-    rows = 0, per pixel (pairs): per tap index k one vector loop places the taps, one per channel
-    reads the colours, one runs the classifiers' derivatives; then a scalar loop scatters the
-    gradients of the 4 pixels each tap read (lanes may collide, so it cannot be a vector scatter)
-    into grads, (chunks, B, H, W, C + 3) zeros, one buffer per chunk of rows (C, V, Z gradients
-    interleaved). rows = 1, shifted rows (*_flat): the same loops per run of tiles on contiguous
-    reads, and the scatter as one contiguous vector pass per row read (`_add_row`) into grads_rows,
-    a flat buffer that the kernel zeroes: the (B, C + 3, H, W) output, each band's own rows, then
-    from index `margins` on the bands' margins, (chunks, C + 3, 2 reach, W) (`_row_target`)."""
+    Per pixel (pairs given, grads_rows None): per tap index k one vector loop places the taps, one
+    per channel reads the colours, one runs the classifiers' derivatives; then a scalar loop
+    scatters the gradients of the 4 pixels each tap read (lanes may collide, so it cannot be a
+    vector scatter) into grads, (chunks, B, H, W, C + 3) zeros, one buffer per chunk of rows (C, V,
+    Z gradients interleaved). Shifted rows (pairs None, grads_rows given; *_flat): the same loops
+    per run of tiles on contiguous reads, and the scatter as one contiguous vector pass per row read
+    (`_add_row`) into grads_rows, a flat buffer that the kernel zeroes: the (B, C + 3, H, W) output,
+    each band's own rows, then from index `margins` on the bands' margins, (chunks, C + 3, 2 reach,
+    W) (`_row_target`). The None picks the path at compile time: numba drops the branches guarded by
+    `is not None` on a None argument before typing, so each path compiles (and is cached) as a
+    kernel of its own, and a call compiles only the path it takes (float32, cold cache: about 20 s
+    per pixel, 38 s shifted rows, against 65 s for the two in one)."""
     _, channels, height, width = color.shape
     stored = channels + 3
     plane = height * width
@@ -634,7 +642,7 @@ def _reconstruct_backward(
                 break
             chunk = turns[turn]
             slot = np.int64(chunk) % grad_neighbors.shape[0]  # shifted rows: one shared buffer, a band owns its tile rows
-            if rows != 0:  # a band's own rows of the output and its margins start at zero
+            if grads_rows is not None:  # shifted rows: a band's own rows of the output and its margins start at zero
                 image = bands[chunk] // height
                 for channel in range(stored):
                     own = (image * stored + channel) * plane + (bands[chunk] - image * height) * width
@@ -657,7 +665,7 @@ def _reconstruct_backward(
                         for c in range(channels):
                             for p in range(size):  # vectorized
                                 own_s[chunk, c, p] = grad_out[b, c, y, np.uint64(start + p)]
-                            _add_own(grads, grads_rows, rows, chunk, b, y, start, size, c, own_s, stored, plane, width)
+                            _add_own(grads, grads_rows, chunk, b, y, start, size, c, own_s, stored, plane, width)
                         start = end
                         continue
                     _block_state(velocity, depth, neighbors, jitter, b, jb, y, start, end, tile, min_radius, chunk, jitter_s, nx_s, ny_s, speed_n_s, vx_s, vy_s, length_x_s, speed_x_s, inverse_x_s, z_x_s)
@@ -677,7 +685,7 @@ def _reconstruct_backward(
                             g_out_s[chunk, p] += g_total * out[b, c, y, ux]
                             g_speed_x_s[chunk, p] += g_total * (color[b, c, y, ux] - out[b, c, y, ux])
                             own_s[chunk, c, p] = g_total / speed_x_s[chunk, p]  # the centre's C[X] / speed
-                        _add_own(grads, grads_rows, rows, chunk, b, y, start, size, c, own_s, stored, plane, width)
+                        _add_own(grads, grads_rows, chunk, b, y, start, size, c, own_s, stored, plane, width)
                     for p in range(size):  # vectorized
                         speed_x = speed_x_s[chunk, p]
                         g_speed_x_s[chunk, p] = -g_speed_x_s[chunk, p] / (speed_x * speed_x)
@@ -693,7 +701,7 @@ def _reconstruct_backward(
                     for k in range(count):
                         if k == middle:
                             continue
-                        if rows != 0:  # shifted rows: one offset per tile segment
+                        if grads_rows is not None:  # shifted rows (None per pixel, whose kernel compiles without this): one offset per tile segment
                             segment = start
                             while segment < end:
                                 segment_end = _segment_end(segment, start, end, tile, chunk, jitter_s, nx_s, ny_s)
@@ -792,78 +800,79 @@ def _reconstruct_backward(
                                         _scatter_rows(grads_rows, top_at + channel * top_stride, bottom_at + channel * bottom_stride, column, column, zero, fy_r, summed)
                                 segment = segment_end
                             continue
-                        own = own_odd * (k % 2)
-                        for p in range(size):  # vectorized: the taps' positions
-                            t = -1.0 + (k + jitter_s[chunk, p] + 1.0) * step
-                            px = (start + p) + (vx_s[chunk, p] if own != 0 else nx_s[chunk, p]) * t
-                            py = y + (vy_s[chunk, p] if own != 0 else ny_s[chunk, p]) * t
-                            column, row0, fx, fy, inside_x, inside_y = _tap_corner(px, py, last_x, last_y)
-                            column_s[chunk, p] = column
-                            row_s[chunk, p] = row0
-                            t_s[chunk, p] = t
-                            fx_s[chunk, p] = fx
-                            fy_s[chunk, p] = fy
-                            inside_x_s[chunk, p] = inside_x
-                            inside_y_s[chunk, p] = inside_y
-                            g_alpha_s[chunk, p] = -g_out_s[chunk, p]
-                            slope_x_s[chunk, p] = 0.0
-                            slope_y_s[chunk, p] = 0.0
-                        for c in range(channels):
-                            for p in range(size):  # vectorized: the colours read
+                        if pairs is not None:  # per pixel (pairs is None on shifted rows, whose kernel compiles without this)
+                            own = own_odd * (k % 2)
+                            for p in range(size):  # vectorized: the taps' positions
+                                t = -1.0 + (k + jitter_s[chunk, p] + 1.0) * step
+                                px = (start + p) + (vx_s[chunk, p] if own != 0 else nx_s[chunk, p]) * t
+                                py = y + (vy_s[chunk, p] if own != 0 else ny_s[chunk, p]) * t
+                                column, row0, fx, fy, inside_x, inside_y = _tap_corner(px, py, last_x, last_y)
+                                column_s[chunk, p] = column
+                                row_s[chunk, p] = row0
+                                t_s[chunk, p] = t
+                                fx_s[chunk, p] = fx
+                                fy_s[chunk, p] = fy
+                                inside_x_s[chunk, p] = inside_x
+                                inside_y_s[chunk, p] = inside_y
+                                g_alpha_s[chunk, p] = -g_out_s[chunk, p]
+                                slope_x_s[chunk, p] = 0.0
+                                slope_y_s[chunk, p] = 0.0
+                            for c in range(channels):
+                                for p in range(size):  # vectorized: the colours read
+                                    row0 = row_s[chunk, p]
+                                    index = image_start + (row0 * width + column_s[chunk, p]) * stored + c
+                                    below_pair = width * stored if row0 < height - 1 else 0
+                                    d_x, d_y, c_y = _pair_read_slopes(pairs, index, below_pair, fx_s[chunk, p], fy_s[chunk, p])
+                                    g_total = g_total_s[chunk, c, p]
+                                    g_alpha_s[chunk, p] += g_total * c_y
+                                    slope_x_s[chunk, p] += g_total * d_x  # times alpha below
+                                    slope_y_s[chunk, p] += g_total * d_y
+                            for p in range(size):  # vectorized: the classifiers and their derivatives
                                 row0 = row_s[chunk, p]
-                                index = image_start + (row0 * width + column_s[chunk, p]) * stored + c
+                                index = image_start + (row0 * width + column_s[chunk, p]) * stored + channels
                                 below_pair = width * stored if row0 < height - 1 else 0
-                                d_x, d_y, c_y = _pair_read_slopes(pairs, index, below_pair, fx_s[chunk, p], fy_s[chunk, p])
-                                g_total = g_total_s[chunk, c, p]
-                                g_alpha_s[chunk, p] += g_total * c_y
-                                slope_x_s[chunk, p] += g_total * d_x  # times alpha below
-                                slope_y_s[chunk, p] += g_total * d_y
-                        for p in range(size):  # vectorized: the classifiers and their derivatives
-                            row0 = row_s[chunk, p]
-                            index = image_start + (row0 * width + column_s[chunk, p]) * stored + channels
-                            below_pair = width * stored if row0 < height - 1 else 0
-                            fx = fx_s[chunk, p]
-                            fy = fy_s[chunk, p]
-                            t = t_s[chunk, p]
-                            slope_vxx, slope_vxy, v_yx = _pair_read_slopes(pairs, index, below_pair, fx, fy)
-                            slope_vyx, slope_vyy, v_yy = _pair_read_slopes(pairs, index + 1, below_pair, fx, fy)
-                            slope_zx, slope_zy, z_y = _pair_read_slopes(pairs, index + 2, below_pair, fx, fy)
-                            distance = abs(t) * (length_x_s[chunk, p] if own != 0 else speed_n_s[chunk, p])
-                            alpha, g_v_yx, g_v_yy, g_z_y, g_speed_x, g_z_x, g_distance = _tap_gradients(
-                                z_x_s[chunk, p], speed_x_s[chunk, p], inverse_x_s[chunk, p], distance, g_alpha_s[chunk, p], v_yx, v_yy, z_y, min_radius, extent, inverse_extent
-                            )
-                            g_fx = alpha * slope_x_s[chunk, p] + g_v_yx * slope_vxx + g_v_yy * slope_vyx + g_z_y * slope_zx
-                            g_fy = alpha * slope_y_s[chunk, p] + g_v_yx * slope_vxy + g_v_yy * slope_vyy + g_z_y * slope_zy
-                            # The tap position X + direction t (no gradient where clamped) and the
-                            # distance |t| speed; own (0 or 1) picks V[X] or NeighborMax.
-                            g_dx = g_fx * t * inside_x_s[chunk, p]
-                            g_dy = g_fy * t * inside_y_s[chunk, p]
-                            g_along = g_distance * abs(t)
-                            alpha_s[chunk, p] = alpha
-                            tap_grads_s[chunk, channels, p] = g_v_yx
-                            tap_grads_s[chunk, channels + 1, p] = g_v_yy
-                            tap_grads_s[chunk, channels + 2, p] = g_z_y
-                            g_speed_x_s[chunk, p] += g_speed_x
-                            own_s[chunk, channels + 2, p] += g_z_x
-                            own_s[chunk, channels, p] += g_dx * own
-                            own_s[chunk, channels + 1, p] += g_dy * own
-                            g_length_x_s[chunk, p] += g_along * own
-                            g_nx_s[chunk, p] += g_dx * (1 - own)
-                            g_ny_s[chunk, p] += g_dy * (1 - own)
-                            g_speed_n_s[chunk, p] += g_along * (1 - own)
-                        for p in range(size):  # scalar: the 4 pixels each tap read
-                            row0 = row_s[chunk, p]
-                            column = column_s[chunk, p]
-                            row1 = min(row0 + 1, height - 1)
-                            column1 = min(column + 1, width - 1)
-                            fx = fx_s[chunk, p]
-                            fy = fy_s[chunk, p]
-                            alpha = alpha_s[chunk, p]
-                            for channel in range(stored):
-                                if scatter[channel] == 0:
-                                    continue
-                                value = alpha * g_total_s[chunk, channel, p] if channel < channels else tap_grads_s[chunk, channel, p]
-                                _scatter_chunk(grads, chunk, b, channel, row0, row1, column, column1, fx, fy, value)
+                                fx = fx_s[chunk, p]
+                                fy = fy_s[chunk, p]
+                                t = t_s[chunk, p]
+                                slope_vxx, slope_vxy, v_yx = _pair_read_slopes(pairs, index, below_pair, fx, fy)
+                                slope_vyx, slope_vyy, v_yy = _pair_read_slopes(pairs, index + 1, below_pair, fx, fy)
+                                slope_zx, slope_zy, z_y = _pair_read_slopes(pairs, index + 2, below_pair, fx, fy)
+                                distance = abs(t) * (length_x_s[chunk, p] if own != 0 else speed_n_s[chunk, p])
+                                alpha, g_v_yx, g_v_yy, g_z_y, g_speed_x, g_z_x, g_distance = _tap_gradients(
+                                    z_x_s[chunk, p], speed_x_s[chunk, p], inverse_x_s[chunk, p], distance, g_alpha_s[chunk, p], v_yx, v_yy, z_y, min_radius, extent, inverse_extent
+                                )
+                                g_fx = alpha * slope_x_s[chunk, p] + g_v_yx * slope_vxx + g_v_yy * slope_vyx + g_z_y * slope_zx
+                                g_fy = alpha * slope_y_s[chunk, p] + g_v_yx * slope_vxy + g_v_yy * slope_vyy + g_z_y * slope_zy
+                                # The tap position X + direction t (no gradient where clamped) and the
+                                # distance |t| speed; own (0 or 1) picks V[X] or NeighborMax.
+                                g_dx = g_fx * t * inside_x_s[chunk, p]
+                                g_dy = g_fy * t * inside_y_s[chunk, p]
+                                g_along = g_distance * abs(t)
+                                alpha_s[chunk, p] = alpha
+                                tap_grads_s[chunk, channels, p] = g_v_yx
+                                tap_grads_s[chunk, channels + 1, p] = g_v_yy
+                                tap_grads_s[chunk, channels + 2, p] = g_z_y
+                                g_speed_x_s[chunk, p] += g_speed_x
+                                own_s[chunk, channels + 2, p] += g_z_x
+                                own_s[chunk, channels, p] += g_dx * own
+                                own_s[chunk, channels + 1, p] += g_dy * own
+                                g_length_x_s[chunk, p] += g_along * own
+                                g_nx_s[chunk, p] += g_dx * (1 - own)
+                                g_ny_s[chunk, p] += g_dy * (1 - own)
+                                g_speed_n_s[chunk, p] += g_along * (1 - own)
+                            for p in range(size):  # scalar: the 4 pixels each tap read
+                                row0 = row_s[chunk, p]
+                                column = column_s[chunk, p]
+                                row1 = min(row0 + 1, height - 1)
+                                column1 = min(column + 1, width - 1)
+                                fx = fx_s[chunk, p]
+                                fy = fy_s[chunk, p]
+                                alpha = alpha_s[chunk, p]
+                                for channel in range(stored):
+                                    if scatter[channel] == 0:
+                                        continue
+                                    value = alpha * g_total_s[chunk, channel, p] if channel < channels else tap_grads_s[chunk, channel, p]
+                                    _scatter_chunk(grads, chunk, b, channel, row0, row1, column, column1, fx, fy, value)
                     for p in range(size):  # vectorized: each pixel's own V[X] and NeighborMax through their lengths
                         length_x = length_x_s[chunk, p]
                         zero = _real(0.0, length_x)
@@ -876,7 +885,7 @@ def _reconstruct_backward(
                         g_nx_s[chunk, p] += over_speed * nx_s[chunk, p]
                         g_ny_s[chunk, p] += over_speed * ny_s[chunk, p]
                     for channel in range(channels, stored):  # V[X]'s and Z[X]'s
-                        _add_own(grads, grads_rows, rows, chunk, b, y, start, size, channel, own_s, stored, plane, width)
+                        _add_own(grads, grads_rows, chunk, b, y, start, size, channel, own_s, stored, plane, width)
                     tile_y = y // tile
                     for tile_x in range(start // tile, (end - 1) // tile + 1):  # NeighborMax's: one sum per tile
                         g_nx = 0.0
@@ -988,11 +997,6 @@ def shifted_rows(jitter: np.ndarray, tile: int, own_odd: bool) -> bool:
     return bool(same.all())
 
 
-def _no_pairs(color: np.ndarray) -> np.ndarray:
-    """An empty pairs buffer of `_pairs`' type for `color`, for kernels that read shifted rows."""
-    return np.empty(0, dtype=np.uint64 if color.dtype == np.float32 else color.dtype)
-
-
 def reconstruct_forward(
     color: np.ndarray,
     velocity: np.ndarray,
@@ -1018,10 +1022,11 @@ def reconstruct_forward(
     chunks = min(batch * height, _threads())
     rows = shifted_rows(jitter, tile, own_odd)
     real = color.dtype.type  # the kernels compute in the images' precision
-    settings = (int(tile), real(soft_z_extent), real(min_radius), int(own_odd), int(rows), row_order(batch * height), chunks, work_pieces(batch * height, chunks), work_counter())
+    settings = (int(tile), real(soft_z_extent), real(min_radius), int(own_odd), row_order(batch * height), chunks, work_pieces(batch * height, chunks), work_counter())
     scratch = scratch_for(ReconstructForwardScratch, chunks, channels, color.dtype)
-    pairs = _no_pairs(color) if rows else _pairs(color, velocity, depth)
-    flats = (color.reshape(-1), velocity.reshape(-1), depth.reshape(-1))
+    # Which of pairs and the flat images is None picks the kernel's path (`_reconstruct_forward`).
+    pairs = None if rows else _pairs(color, velocity, depth)
+    flats = (color.reshape(-1), velocity.reshape(-1), depth.reshape(-1)) if rows else (None, None, None)
     _reconstruct_forward(pairs, *flats, color, velocity, depth, neighbors, counts, jitter, *settings, out, weight, *scratch)
     return out, weight
 
@@ -1174,7 +1179,7 @@ def _backward_chunks(color, velocity, depth, neighbors, counts, jitter, out, wei
         chunks = min(threads, batch * height)
         bands, reach = np.arange(chunks + 1, dtype=np.int64) * (batch * height) // chunks, 0
         grads = np.zeros((chunks, batch, height, width, stored), dtype=color.dtype)
-        buffer, margins = np.zeros(0, dtype=color.dtype), 0
+        buffer, margins = None, 0
         grad_neighbors = np.zeros((chunks, *neighbors.shape), dtype=color.dtype)
         order = row_order(batch * height)
     need_color, need_velocity, need_depth = (bool(need) for need in needs)
@@ -1182,9 +1187,9 @@ def _backward_chunks(color, velocity, depth, neighbors, counts, jitter, out, wei
     real = color.dtype.type  # the kernels compute in the images' precision
     turns = _band_turns(bands, counts, height, tile) if rows else np.arange(chunks, dtype=np.int64)  # per pixel: a chunk per thread
     block = _ROW_BLOCK if rows else _BLOCK
-    settings = (int(tile), real(soft_z_extent), real(min_radius), int(own_odd), int(rows), order, scatter, bands, turns, min(threads, chunks), work_counter(), reach, block)
+    settings = (int(tile), real(soft_z_extent), real(min_radius), int(own_odd), order, scatter, bands, turns, min(threads, chunks), work_counter(), reach, block)
     scratch = scratch_for(ReconstructBackwardScratch, chunks, channels, color.dtype, block)
-    pairs = _no_pairs(color) if rows else _pairs(color, velocity, depth)
+    pairs = None if rows else _pairs(color, velocity, depth)  # which of pairs and buffer is None picks the kernel's path
     arrays = (pairs, color.reshape(-1), velocity.reshape(-1), depth.reshape(-1), color, velocity, depth, neighbors, counts, jitter)
     _reconstruct_backward(*arrays, *settings, out, weight, grad_out, grads, buffer, margins, grad_neighbors, *scratch)
     grads_rows = buffer[:margins].reshape(batch, stored, height, width) if rows else None
