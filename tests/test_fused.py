@@ -9,13 +9,14 @@ cover when asked for (impl="fused") and quietly use the pure ops otherwise (impl
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
 jax = pytest.importorskip("jax")
-pytest.importorskip("numba")
+numba = pytest.importorskip("numba")
 import jax.numpy as jnp  # noqa: E402
 
 import jax_impl  # noqa: E402
@@ -433,3 +434,40 @@ def test_jax_backward_computes_only_the_gradients_asked_for(wanted, monkeypatch)
     for name, fused_grad, pure_grad in zip(wanted, *results):
         assert np.abs(pure_grad).max() > 0, name
         np.testing.assert_allclose(fused_grad, pure_grad, rtol=1e-10, atol=1e-10, err_msg=name)
+
+
+def _add_one(values):  # compiled by test_a_long_compile_says_so_and_a_cached_kernel_does_not
+    for i in numba.prange(values.shape[0]):
+        values[i] += 1.0
+
+
+def test_a_long_compile_says_so_and_a_cached_kernel_does_not(tmp_path, monkeypatch, capsys):
+    """A kernel's first call with new argument types compiles (tens of seconds for reconstruct's):
+    stderr says so while it runs and when it is done; a second call, and a kernel loaded from
+    numba's cache by a new dispatcher (a new process), say nothing."""
+    from diffblur.kernels import shared
+
+    monkeypatch.setattr(shared, "COMPILE_NOTICE_AFTER", 0.0)  # this one compiles in well under the real 3 s
+    # A cold cache of its own. numba rereads its settings from the environment when it compiles, so
+    # the directory is set there, and the settings reread after the test.
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    numba.core.config.reload_config()
+    try:
+        values = np.zeros(4)
+        shared._jit(_add_one)(values)
+        err = capsys.readouterr().err
+        assert re.fullmatch(
+            r"diffblur: compiling the fused kernel test_fused\.add_one \(float64\) for numba's on-disk cache, once per dtype and path; later calls and processes load it\n"
+            r"diffblur: test_fused\.add_one compiled in \d+ s\n",
+            err,
+        ), err
+        shared._jit(_add_one)(values)  # a new dispatcher: loaded from the cache
+        kernel = shared._jit(_add_one)
+        kernel(values)
+        kernel(values)
+        assert capsys.readouterr().err == ""
+        assert list(tmp_path.rglob("*_add_one*.nbi")), "not cached in the test's directory"
+        np.testing.assert_array_equal(values, 4.0)
+    finally:
+        monkeypatch.undo()
+        numba.core.config.reload_config()

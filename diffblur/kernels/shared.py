@@ -18,7 +18,9 @@ from __future__ import annotations
 import inspect
 import math
 import os
+import sys
 import threading
+import time
 from typing import Any, NewType, TypeVar, get_type_hints
 
 import numpy as np
@@ -110,6 +112,59 @@ def row_order(rows: int, interleave: int = _ROW_INTERLEAVE) -> np.ndarray:
     return np.argsort(np.arange(rows) % interleave, kind="stable").astype(np.int64)
 
 
+#: Seconds a kernel's compile runs before `_CompileNotice` says so: the small kernels (copies, sums)
+#: compile in under a second and stay silent.
+COMPILE_NOTICE_AFTER = 3.0
+
+
+class _CompileNotice(numba.core.event.Listener if numba is not None else object):
+    """A line on stderr while a fused kernel compiles for more than COMPILE_NOTICE_AFTER seconds,
+    and one when it is done: a first call with new argument types (a dtype, a path) compiles for
+    tens of seconds on a few cores (docs/fused.md), which without a word looks like a hang. numba
+    reports a compile only on a cache miss (event "numba:compile"): calls that load the kernel from
+    numba's on-disk cache say nothing."""
+
+    def __init__(self) -> None:
+        self.names: dict[int, str] = {}  # id of a `_jit` kernel's dispatcher -> its name
+        self.pending: dict[tuple[int, int], dict] = {}  # (dispatcher, thread) -> the compile's state
+        self.lock = threading.Lock()  # the timer's line and the end's, in order, never after the end
+
+    def on_start(self, event) -> None:
+        name = self.names.get(id(event.data["dispatcher"]))
+        if name is None:  # an inlined helper, or someone else's numba function
+            return
+        floats = [arg for arg in event.data["args"] if isinstance(arg, _types.Array) and isinstance(arg.dtype, _types.Float)]
+        images = [arg for arg in floats if arg.ndim == 4] or floats  # (B, C, H, W): the dtype a user chose
+        state = {"name": name, "start": time.perf_counter(), "said": False, "done": False}
+
+        def say() -> None:
+            with self.lock:
+                if not state["done"]:
+                    dtypes = ", ".join(sorted({str(arg.dtype) for arg in images}))
+                    print(f"diffblur: compiling the fused kernel {name} ({dtypes}) for numba's on-disk cache, once per dtype and path; later calls and processes load it", file=sys.stderr, flush=True)
+                    state["said"] = True
+
+        state["timer"] = threading.Timer(COMPILE_NOTICE_AFTER, say)
+        state["timer"].daemon = True
+        self.pending[(id(event.data["dispatcher"]), threading.get_ident())] = state
+        state["timer"].start()
+
+    def on_end(self, event) -> None:
+        state = self.pending.pop((id(event.data["dispatcher"]), threading.get_ident()), None)
+        if state is None:
+            return
+        state["timer"].cancel()
+        with self.lock:
+            state["done"] = True
+            if state["said"]:
+                print(f"diffblur: {state['name']} compiled in {time.perf_counter() - state['start']:.0f} s", file=sys.stderr, flush=True)
+
+
+_COMPILE_NOTICE = _CompileNotice()
+if numba is not None:
+    numba.core.event.register("numba:compile", _COMPILE_NOTICE)
+
+
 class _Locked:
     """A parallel kernel called from Python under `_KERNEL_LOCK`; its other attributes are the
     numba dispatcher's (`signatures`, ...)."""
@@ -128,7 +183,9 @@ class _Locked:
 def _jit(function):
     if numba is None:  # pragma: no cover
         return function
-    return _Locked(numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy", fastmath=True)(function))
+    dispatcher = numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy", fastmath=True)(function)
+    _COMPILE_NOTICE.names[id(dispatcher)] = f"{function.__module__.rsplit('.', 1)[-1]}.{function.__name__.lstrip('_')}"
+    return _Locked(dispatcher)
 
 
 def _inline(function):
