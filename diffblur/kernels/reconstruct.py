@@ -485,8 +485,8 @@ def _reconstruct_forward(
 def _add_own(grads, grads_rows, chunk, b, y, start, size, k, value_s, stored, plane, width):
     """Add value_s[chunk, k, p] to input channel k's gradient at the pixels (y, start + p) of image b,
     p < size: into the planar flat (B, stored, H, W) `grads_rows` on shifted rows (one contiguous
-    vector add into the band's own row), into chunk `chunk`'s interleaved `grads` when it is None
-    (per pixel)."""
+    vector add into the band's own row), into chunk `chunk`'s interleaved `grads` per pixel (where
+    grads_rows is None, and numba compiles only that branch)."""
     if grads_rows is not None:
         at = np.uint64((b * stored + k) * plane + y * width + start)
         for p in range(np.uint64(size)):  # vectorized
